@@ -1,0 +1,382 @@
+"""Scene sampling: a pure function of (config, seed, scene index) -> declarative ``scene.json``.
+
+Two levels, so the workflow can build its DAG without touching any file:
+
+* :func:`plan_scene` decides everything the job graph depends on — split, trajectories, motion
+  configs, which lightings each trajectory uses (source and targets) and how many buffer frames it
+  needs. It reads no file and is cheap enough to call for every scene at parse time.
+* :func:`sample_scene` adds the content: assets from the curation manifest, primitives, ground
+  material, lightings (HDRIs) and the per-frame camera / object / light poses. It calls
+  :func:`plan_scene`, so the spec always agrees with the DAG.
+
+Conventions: world Z up, metres, radians (see docs/architecture.md). Object ``location_m`` is the
+centre of its base on the ground (z = 0). The camera looks at ``cam_target_m`` from
+``cam_location_m`` with horizontal field of view ``camera.fov_x_rad``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+FORMAT = "lightcrafter.scene/1"
+MOTIONS = ("orbit_static", "dynamic_moving", "static_rotating_light")
+ELEVATION_GROUPS = ("upper", "middle", "lower", "random")
+SPLITS = ("train", "test", "recon")
+PRIMITIVE_SHAPES = ("cube", "sphere", "cylinder", "cone", "torus")
+GROUND_PATTERNS = ("checker", "noise", "bricks", "voronoi")
+
+
+class ConfigError(ValueError):
+    """An impossible configuration. The message names the key and the fix."""
+
+
+def scene_ids(scfg: dict) -> list[str]:
+    return [f"s{i:04d}" for i in range(int(scfg["count"]))]
+
+
+def scene_index(scene_id: str) -> int:
+    return int(scene_id.lstrip("s"))
+
+
+def _rng(seed: int, index: int, stream: int) -> np.random.Generator:
+    """Independent, reproducible random streams per (seed, scene, purpose)."""
+    return np.random.default_rng([int(seed), int(index), int(stream)])
+
+
+# ----------------------------------------------------------------------------- splits
+def split_counts(count: int, fractions: dict[str, float]) -> dict[str, int]:
+    """Largest-remainder rounding of split fractions to scene counts (sums to ``count``)."""
+    total = sum(fractions.get(s, 0.0) for s in SPLITS)
+    if total <= 0:
+        raise ConfigError("scenes.splits: fractions must sum to a positive number")
+    raw = {s: count * fractions.get(s, 0.0) / total for s in SPLITS}
+    counts = {s: int(math.floor(v)) for s, v in raw.items()}
+    left = count - sum(counts.values())
+    for s in sorted(SPLITS, key=lambda s: (-(raw[s] - counts[s]), SPLITS.index(s)))[:left]:
+        counts[s] += 1
+    return counts
+
+
+def split_of(scfg: dict, seed: int, index: int) -> str:
+    """Split of scene ``index``: a seeded permutation of scene indices cut by the split counts."""
+    n = int(scfg["count"])
+    if not 0 <= index < n:
+        raise ValueError(f"scene index {index} outside 0..{n - 1} (scenes.count = {n})")
+    counts = split_counts(n, scfg["splits"])
+    order = np.random.default_rng([int(seed), 0x5B117]).permutation(n)
+    position = int(np.nonzero(order == index)[0][0])
+    edge = 0
+    for s in SPLITS:
+        edge += counts[s]
+        if position < edge:
+            return s
+    raise AssertionError("unreachable")
+
+
+# ----------------------------------------------------------------------------- plan
+def plan_scene(scfg: dict, seed: int, index: int) -> dict:
+    """What the DAG needs to know about scene ``index`` (no file access).
+
+    Returns ``{"scene_id", "split", "lighting_ids", "trajectories": [{"id", "motion",
+    "elevation_group", "quadrant", "oscillating", "camera_static", "scene_static",
+    "light_rotating", "source_light", "target_lights", "render_lights", "buffer_frames"}]}``.
+    Motion configs cycle over ``scenes.motions`` across (scene, trajectory) so they stay balanced.
+    """
+    rng = _rng(seed, index, 1)
+    n_light = int(scfg["lightings_per_scene"])
+    n_targets = int(scfg["targets_per_trajectory"])
+    if n_targets > n_light - 1:
+        raise ConfigError(
+            f"scenes.targets_per_trajectory={n_targets} needs at least {n_targets + 1} lightings; "
+            f"raise scenes.lightings_per_scene (now {n_light})")
+    motions = list(scfg["motions"])
+    lights = [f"L{k}" for k in range(n_light)]
+    n_traj = int(scfg["trajectories_per_scene"])
+    trajs = []
+    for t in range(n_traj):
+        motion = motions[(index * n_traj + t) % len(motions)]
+        src = int(rng.integers(n_light))
+        others = [k for k in range(n_light) if k != src]
+        tgts = sorted(int(k) for k in rng.choice(others, size=n_targets, replace=False))
+        camera_static = motion == "static_rotating_light"
+        scene_static = motion != "dynamic_moving"
+        trajs.append({
+            "id": f"t{t}",
+            "motion": motion,
+            "elevation_group": ELEVATION_GROUPS[int(rng.integers(len(ELEVATION_GROUPS)))],
+            "quadrant": int(rng.integers(4)),
+            "oscillating": bool(rng.random() < float(scfg["oscillation_prob"])) and not camera_static,
+            "camera_static": camera_static,
+            "scene_static": scene_static,
+            "light_rotating": motion == "static_rotating_light",
+            "source_light": lights[src],
+            "target_lights": [lights[k] for k in tgts],
+            "render_lights": sorted({lights[src], *(lights[k] for k in tgts)}),
+            "buffer_frames": 1 if (camera_static and scene_static) else int(scfg["num_frames"]),
+        })
+    return {"scene_id": f"s{index:04d}", "split": split_of(scfg, seed, index),
+            "lighting_ids": lights, "trajectories": trajs}
+
+
+# ----------------------------------------------------------------------------- content
+@dataclass
+class _Placed:
+    id: str
+    x: float
+    y: float
+    r: float  # footprint radius (metres)
+    h: float  # height (metres)
+
+
+def _place(rng, radii, heights, ids, layout_radius_m, clearance_m, tries=200, restarts=50) -> list[_Placed]:
+    """Rejection-sample non-overlapping footprints (discs grown by ``clearance_m``) in a disc.
+
+    Largest first; a full restart when one does not fit. Two footprints never come closer than
+    their radii plus twice the clearance, which leaves room for dynamic motion (see frames).
+    """
+    order = np.argsort(-np.asarray(radii), kind="stable")
+    for _ in range(restarts):
+        placed: list[_Placed] = []
+        for k in order:
+            r = radii[k] + clearance_m
+            for _ in range(tries):
+                rho = math.sqrt(rng.random()) * max(layout_radius_m - r, 0.0)
+                phi = rng.uniform(0, 2 * math.pi)
+                x, y = rho * math.cos(phi), rho * math.sin(phi)
+                if all(math.hypot(x - p.x, y - p.y) >= r + p.r + clearance_m for p in placed):
+                    placed.append(_Placed(ids[k], x, y, radii[k], heights[k]))
+                    break
+            else:
+                break
+        if len(placed) == len(radii):
+            return sorted(placed, key=lambda p: ids.index(p.id))
+    raise ConfigError(
+        f"scenes.layout_radius_m={layout_radius_m} is too small to place {len(radii)} objects "
+        f"without overlap; raise it or lower objects_per_scene/primitives_per_scene")
+
+
+def _look_at_distance(bound_radius_m: float, fov_x: float, aspect_hw: float, margin: float) -> float:
+    """Distance at which a sphere of ``bound_radius_m`` fits the narrower field of view."""
+    fov_y = 2 * math.atan(math.tan(fov_x / 2) * aspect_hw)
+    return margin * bound_radius_m / math.sin(min(fov_x, fov_y) / 2)
+
+
+_ELEV_RANGES_DEG = {"upper": (45.0, 65.0), "middle": (25.0, 45.0), "lower": (8.0, 25.0), "random": (8.0, 65.0)}
+
+
+def _trajectory_frames(rng, plan_t, scfg, centre, bound_r, fov_x, aspect_hw, placed, dynamic_ids):
+    n = int(scfg["num_frames"])
+    t = np.arange(n, dtype=float)
+    lo, hi = _ELEV_RANGES_DEG[plan_t["elevation_group"]]
+    elev0 = rng.uniform(lo, hi)
+    az0 = math.radians(90.0 * plan_t["quadrant"] + rng.uniform(0.0, 90.0))
+    direction = 1.0 if rng.random() < 0.5 else -1.0
+    step = math.radians(float(scfg["orbit_deg_per_frame"]))
+    if plan_t["camera_static"]:
+        az = np.full(n, az0)
+        elev = np.full(n, math.radians(elev0))
+        dist_scale = np.full(n, 1.0 + 0.15 * rng.random())
+    else:
+        if plan_t["oscillating"]:
+            # Non-monotonic: sway back and forth around the start azimuth.
+            amp = math.radians(rng.uniform(8.0, 20.0))
+            period = rng.uniform(0.5, 1.0) * max(n, 8)
+            az = az0 + amp * np.sin(2 * math.pi * t / period)
+        else:
+            az = az0 + direction * step * t
+        # Smoothly varying elevation and distance (random phase and frequency), kept in group range.
+        ph1, ph2 = rng.uniform(0, 2 * math.pi, 2)
+        f1, f2 = rng.uniform(0.5, 1.5, 2) / max(n, 1)
+        e_amp = rng.uniform(0.0, (hi - lo) / 2)
+        elev = np.radians(np.clip(elev0 + e_amp * np.sin(2 * math.pi * f1 * t + ph1), lo, hi))
+        d_amp = float(scfg["distance_jitter"]) * rng.random()
+        dist_scale = 1.0 + d_amp * (0.5 + 0.5 * np.sin(2 * math.pi * f2 * t + ph2))
+    d0 = _look_at_distance(bound_r, fov_x, aspect_hw, float(scfg["framing_margin"]))
+    frames = []
+    rot_rate = math.radians(float(scfg["light_rotation_deg_per_frame"])) * direction
+    move_amp = float(scfg["clearance_m"]) * 0.45  # stays inside the clearance ring: no contact
+    for i in range(n):
+        d = d0 * dist_scale[i]
+        loc = centre + d * np.array([math.cos(elev[i]) * math.cos(az[i]),
+                                     math.cos(elev[i]) * math.sin(az[i]), math.sin(elev[i])])
+        fr = {"cam_location_m": np.round(loc, 6).tolist(), "cam_target_m": np.round(centre, 6).tolist(),
+              "light_rotation_z_rad": round(rot_rate * i, 6) if plan_t["light_rotating"] else 0.0}
+        if dynamic_ids:
+            objs = {}
+            for p, (ph, w, spin) in dynamic_ids.items():
+                obj = placed[p]
+                dx, dy = move_amp * math.cos(w * i + ph) - move_amp * math.cos(ph), \
+                    move_amp * math.sin(w * i + ph) - move_amp * math.sin(ph)
+                objs[obj["id"]] = {
+                    "location_m": [round(obj["location_m"][0] + dx, 6), round(obj["location_m"][1] + dy, 6), 0.0],
+                    "rotation_euler_rad": [0.0, 0.0, round(obj["rotation_euler_rad"][2] + spin * i, 6)],
+                }
+            fr["objects"] = objs
+        frames.append(fr)
+    return frames
+
+
+def _ground_material(rng, scfg):
+    tex_dir = scfg.get("ground_textures_dir")
+    if tex_dir:
+        from pathlib import Path
+
+        sets = sorted(p for p in Path(tex_dir).iterdir() if p.is_dir()) if Path(tex_dir).is_dir() else []
+        if not sets:
+            raise ConfigError(f"scenes.ground_textures_dir={tex_dir}: no texture-set folders found; "
+                              "point it at a folder of PBR texture sets or set it to null")
+        return {"type": "texture_set", "dir": str(sets[int(rng.integers(len(sets)))]),
+                "scale_m": round(float(rng.uniform(0.5, 2.0)), 4)}
+    return {
+        "type": "procedural",
+        "pattern": GROUND_PATTERNS[int(rng.integers(len(GROUND_PATTERNS)))],
+        "color_a": np.round(rng.uniform(0.05, 0.8, 3), 4).tolist(),
+        "color_b": np.round(rng.uniform(0.05, 0.8, 3), 4).tolist(),
+        "scale": round(float(rng.uniform(2.0, 10.0)), 4),
+        "roughness": round(float(rng.uniform(0.3, 0.95)), 4),
+        "metallic": 0.0,
+    }
+
+
+def hdri_pool(scfg: dict) -> list[str]:
+    """HDRI references to sample lightings from: the bpy wheel's eight, or a user folder."""
+    from pathlib import Path
+
+    d = scfg.get("hdri_dir")
+    if d:
+        files = sorted(str(p) for p in Path(d).glob("*.exr")) + sorted(str(p) for p in Path(d).glob("*.hdr"))
+        if not files:
+            raise ConfigError(f"scenes.hdri_dir={d}: no .exr/.hdr files found; point it at a folder of "
+                              "HDR environment maps or set it to null for the built-in ones")
+        return files
+    from .lights import builtin_hdris
+
+    return [f"builtin:{name}" for name in builtin_hdris()]
+
+
+def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: dict,
+                 hdris: list[str]) -> dict:
+    """The full declarative scene spec for scene ``index`` (see docs/architecture.md)."""
+    plan = plan_scene(scfg, seed, index)
+    rng = _rng(seed, index, 2)
+    accepted = sorted(manifest["accepted"], key=lambda a: a["id"])
+    n_assets, n_prims = int(scfg["objects_per_scene"]), int(scfg["primitives_per_scene"])
+    if n_assets and len(accepted) < 1:
+        raise ConfigError("assets: the curation manifest accepted no assets; see its 'rejected' list")
+    if not hdris:
+        raise ConfigError("scenes: no HDRIs to sample lightings from")
+    chosen = rng.choice(len(accepted), size=n_assets, replace=len(accepted) < n_assets) if n_assets else []
+
+    objects, radii, heights, ids = [], [], [], []
+    for k, ai in enumerate(chosen):
+        a = accepted[int(ai)]
+        s = float(rng.uniform(*scfg["asset_scale_range"]))
+        objects.append({"id": f"a{k}", "kind": "asset", "asset_id": a["id"], "path": a["path"], "scale": round(s, 6),
+                        "footprint_radius_m": round(a["footprint_radius_m"] * s, 6),
+                        "height_m": round(a["height_m"] * s, 6)})
+    lo, hi = scfg["primitive_size_range_m"]
+    for k in range(n_prims):
+        shape = PRIMITIVE_SHAPES[int(rng.integers(len(PRIMITIVE_SHAPES)))]
+        if shape in ("sphere",):
+            d = rng.uniform(lo, hi)
+            dims = [d, d, d]
+        elif shape in ("cylinder", "cone", "torus"):
+            d = rng.uniform(lo, hi)
+            dims = [d, d, rng.uniform(lo, hi) * (0.4 if shape == "torus" else 1.0)]
+        else:
+            dims = list(rng.uniform(lo, hi, 3))
+        metallic = 1.0 if rng.random() < float(scfg["metallic_prob"]) else 0.0
+        objects.append({
+            "id": f"p{k}", "kind": "primitive", "shape": shape,
+            "dimensions_m": np.round(dims, 6).tolist(),
+            "footprint_radius_m": round(0.5 * math.hypot(dims[0], dims[1]), 6),
+            "height_m": round(float(dims[2]), 6),
+            "material": {"base_color": np.round(rng.uniform(0.05, 0.95, 3), 4).tolist(),
+                         "roughness": round(float(rng.uniform(0.05, 1.0)), 4), "metallic": metallic},
+        })
+    for o in objects:
+        radii.append(o["footprint_radius_m"])
+        heights.append(o["height_m"])
+        ids.append(o["id"])
+    placed = _place(rng, radii, heights, ids, float(scfg["layout_radius_m"]), float(scfg["clearance_m"]))
+    for o, p in zip(objects, placed):
+        o["location_m"] = [round(p.x, 6), round(p.y, 6), 0.0]
+        o["rotation_euler_rad"] = [0.0, 0.0, round(float(rng.uniform(0, 2 * math.pi)), 6)]
+
+    # Bounding sphere of the layout (incl. motion slack) around a target at mid-height.
+    max_h = max(heights) if heights else 0.5
+    centre = np.array([0.0, 0.0, 0.4 * max_h])
+    slack = float(scfg["clearance_m"])
+    bound_r = max(math.sqrt((math.hypot(p.x, p.y) + p.r + slack) ** 2 + max(p.h - centre[2], centre[2]) ** 2)
+                  for p in placed) if placed else 1.0
+
+    lightings = []
+    pool_idx = rng.permutation(len(hdris))
+    for k, lid in enumerate(plan["lighting_ids"]):
+        lightings.append({"id": lid, "hdri": hdris[int(pool_idx[k % len(hdris)])],
+                          "rotation_z_rad": round(float(rng.uniform(0, 2 * math.pi)), 6),
+                          "strength": round(float(rng.uniform(*scfg["light_strength_range"])), 4)})
+
+    width, height = int(scfg["width"]), int(scfg["height"])
+    fov_x = math.radians(float(scfg["fov_x_deg"]))
+    trajectories = []
+    for t in plan["trajectories"]:
+        trng = _rng(seed, index, 100 + int(t["id"][1:]))
+        dynamic = {}
+        if not t["scene_static"]:
+            for k, o in enumerate(objects):
+                if o["kind"] == "asset" or trng.random() < 0.5:
+                    dynamic[k] = (float(trng.uniform(0, 2 * math.pi)), float(trng.uniform(0.1, 0.3)),
+                                  float(trng.uniform(-0.05, 0.05)))
+        frames = _trajectory_frames(trng, t, scfg, centre, bound_r, fov_x, height / width, objects, dynamic)
+        trajectories.append({**t, "frames": frames})
+
+    return {
+        "format": FORMAT,
+        "scene_id": plan["scene_id"],
+        "seed": int(seed),
+        "split": plan["split"],
+        "resolution": {"width": width, "height": height},
+        "num_frames": int(scfg["num_frames"]),
+        "fps": int(scfg["fps"]),
+        "camera": {"fov_x_rad": round(fov_x, 9)},
+        "render": {"spp": int(render_cfg["spp"]), "seed": int(render_cfg["seed"]),
+                   "max_bounces": int(render_cfg["max_bounces"])},
+        "ground": {"size_m": float(scfg["ground_size_m"]), "material": _ground_material(rng, scfg)},
+        "objects": objects,
+        "lightings": lightings,
+        "trajectories": trajectories,
+    }
+
+
+# ----------------------------------------------------------------------------- geometry checks
+def camera_c2w_opencv(cam_location_m, cam_target_m) -> np.ndarray:
+    """OpenCV camera-to-world for a look-at camera with world +Z as the up hint (no roll)."""
+    eye, tgt = np.asarray(cam_location_m, float), np.asarray(cam_target_m, float)
+    z = tgt - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    if np.linalg.norm(x) < 1e-9:
+        x = np.array([1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = x, y, z, eye
+    return c2w
+
+
+def intrinsics(width: int, height: int, fov_x_rad: float) -> np.ndarray:
+    """Pinhole K (pixels): square pixels, principal point at the image centre."""
+    f = 0.5 * width / math.tan(0.5 * fov_x_rad)
+    return np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
+
+
+def object_corners_world(obj: dict, pose: dict | None = None) -> np.ndarray:
+    """8 corners (metres, world) of the object's bounding cylinder's enclosing box."""
+    pose = pose or obj
+    x, y, _ = pose["location_m"]
+    r, h = obj["footprint_radius_m"], obj["height_m"]
+    return np.array([[x + sx * r, y + sy * r, z] for sx in (-1, 1) for sy in (-1, 1) for z in (0.0, h)])

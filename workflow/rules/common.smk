@@ -1,0 +1,65 @@
+# Shared helpers: config validation, the scene plan, and path builders. No rules here.
+import json
+import sys
+
+sys.path.insert(0, workflow.basedir)
+
+from lightcrafter.config import check_config
+from lightcrafter.scenes import ConfigError, plan_scene, scene_ids
+
+try:
+    check_config(config, workflow.source_path("../schemas/config.schema.yaml"))
+except ConfigError as exc:
+    sys.exit(f"ConfigError: {exc}")
+
+PY = sys.executable
+OUT = config["output_dir"]
+SEED = config["seed"]
+SCENE_IDS = scene_ids(config["scenes"])
+_PLANS = {sid: plan_scene(config["scenes"], SEED, i) for i, sid in enumerate(SCENE_IDS)}
+
+
+wildcard_constraints:
+    scene=r"s\d{4}",
+    traj=r"t\d+",
+    light=r"L\d+",
+
+
+def scene_plan(scene_id):
+    """Split and trajectories of a scene (see lightcrafter.scenes.plan_scene)."""
+    return _PLANS[scene_id]
+
+
+def scenes_in_split(split):
+    return [sid for sid in SCENE_IDS if _PLANS[sid]["split"] == split]
+
+
+def trajectory_plan(scene_id, traj_id):
+    for t in _PLANS[scene_id]["trajectories"]:
+        if t["id"] == traj_id:
+            return t
+    raise ValueError(f"scene {scene_id} has no trajectory {traj_id}")
+
+
+def as_json(obj):
+    """Compact JSON for passing config sections on a command line (quote with :q)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"))
+
+
+def gt_buffer_manifests(scene_ids=None):
+    """Every trajectory's buffer manifest (lighting-independent: one per trajectory)."""
+    return [
+        f"{OUT}/gt/{sid}/{t['id']}/buffers.json"
+        for sid in (scene_ids or SCENE_IDS)
+        for t in _PLANS[sid]["trajectories"]
+    ]
+
+
+def gt_rgb_manifests(scene_ids=None):
+    """Every (trajectory, lighting) that some pair uses; unused lightings are left out."""
+    return [
+        f"{OUT}/gt/{sid}/{t['id']}/rgb/{light}.json"
+        for sid in (scene_ids or SCENE_IDS)
+        for t in _PLANS[sid]["trajectories"]
+        for light in t["render_lights"]
+    ]

@@ -1,0 +1,50 @@
+# Ground truth with Blender Cycles, one scene per process. Buffers do not depend on lighting:
+# one job per trajectory. Radiance: one job per (trajectory, lighting that some pair uses).
+
+
+rule render_buffers:
+    input:
+        scene=f"{OUT}/scenes/{{scene}}/scene.json",
+        manifest=f"{OUT}/assets/manifest.json",
+    output:
+        buffers=f"{OUT}/gt/{{scene}}/{{traj}}/buffers.json",
+        cameras=f"{OUT}/gt/{{scene}}/{{traj}}/cameras.json",
+    params:
+        out_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
+    log:
+        "logs/render_buffers/{scene}_{traj}.log",
+    benchmark:
+        "benchmarks/render_buffers/{scene}_{traj}.tsv"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=60,
+    shell:
+        "{PY} {workflow.basedir}/scripts/render_gt.py --scene {input.scene} --traj {wildcards.traj} "
+        "--buffers {params.out_dir} --threads {threads} > {log} 2>&1"
+
+
+rule render_rgb:
+    input:
+        scene=f"{OUT}/scenes/{{scene}}/scene.json",
+        manifest=f"{OUT}/assets/manifest.json",
+    output:
+        frames=f"{OUT}/gt/{{scene}}/{{traj}}/rgb/{{light}}.json",
+        preview=report(
+            f"{OUT}/gt/{{scene}}/{{traj}}/rgb/{{light}}.mp4",
+            category="Ground truth",
+            labels={"scene": "{scene}", "trajectory": "{traj}", "lighting": "{light}"},
+        ),
+    params:
+        out_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
+    log:
+        "logs/render_rgb/{scene}_{traj}_{light}.log",
+    benchmark:
+        "benchmarks/render_rgb/{scene}_{traj}_{light}.tsv"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=120,
+    shell:
+        "{PY} {workflow.basedir}/scripts/render_gt.py --scene {input.scene} --traj {wildcards.traj} "
+        "--light {wildcards.light} --out {params.out_dir} --threads {threads} > {log} 2>&1"
