@@ -1,35 +1,27 @@
 # Assets: procedural "Objaverse-style" GLBs (or a user folder), then curation.
 
 
-def curation_inputs(wildcards):
-    if config["assets"]["source"] == "procedural":
-        return f"{OUT}/assets/raw/generated.json"
-    return []
-
-
-def curation_source_dir():
-    if config["assets"]["source"] == "procedural":
-        return f"{OUT}/assets/raw"
-    return config["assets"]["dir"]
-
-
 rule generate_assets:
     output:
         f"{OUT}/assets/raw/generated.json",
-    params:
-        out_dir=f"{OUT}/assets/raw",
-        settings=as_json(config["assets"].get("procedural", {"count": 6})),
     log:
         "logs/generate_assets.log",
     benchmark:
-        "benchmarks/generate_assets.tsv"
+        "logs/benchmark/generate_assets.tsv"
+    conda:
+        "../../envs/assets.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=30,
+    params:
+        script=script_path("generate_assets.py"),
+        out_dir=parent_dir,
+        seed=SEED,
+        settings=as_json(config["assets"].get("procedural", {"count": 6})),
     shell:
-        "{PY} {workflow.basedir}/scripts/generate_assets.py --out-dir {params.out_dir} "
-        "--listing {output} --seed {SEED} --settings {params.settings:q} > {log} 2>&1"
+        "python {params.script} --out-dir {params.out_dir} "
+        "--listing {output} --seed {params.seed} --settings {params.settings:q} > {log} 2>&1"
 
 
 rule curate_assets:
@@ -37,18 +29,21 @@ rule curate_assets:
         curation_inputs,
     output:
         manifest=f"{OUT}/assets/manifest.json",
-    params:
-        src_dir=curation_source_dir(),
-        out_dir=f"{OUT}/assets/curated",
-        settings=as_json(config["assets"].get("curation", {})),
     log:
         "logs/curate_assets.log",
     benchmark:
-        "benchmarks/curate_assets.tsv"
+        "logs/benchmark/curate_assets.tsv"
+    conda:
+        "../../envs/assets.yaml"
     threads: 1
     resources:
         mem_mb=4000,
         runtime=120,
+    params:
+        script=script_path("curate_assets.py"),
+        src_dir=curation_source_dir(),
+        out_dir=curated_dir,
+        settings=as_json(config["assets"].get("curation", {})),
     shell:
-        "{PY} {workflow.basedir}/scripts/curate_assets.py --src-dir {params.src_dir} "
+        "python {params.script} --src-dir {params.src_dir} "
         "--out-dir {params.out_dir} --manifest {output.manifest} --settings {params.settings:q} > {log} 2>&1"

@@ -1,6 +1,7 @@
 # Shared helpers: config validation, the scene plan, and path builders. No rules here.
 import json
 import sys
+from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
 
@@ -12,7 +13,6 @@ try:
 except ConfigError as exc:
     sys.exit(f"ConfigError: {exc}")
 
-PY = sys.executable
 OUT = config["output_dir"]
 SEED = config["seed"]
 SCENE_IDS = scene_ids(config["scenes"])
@@ -41,6 +41,11 @@ def trajectory_plan(scene_id, traj_id):
     raise ValueError(f"scene {scene_id} has no trajectory {traj_id}")
 
 
+def script_path(name):
+    """Absolute path of an entry point in scripts/ (rules call them with the env's python)."""
+    return str(Path(workflow.basedir) / "scripts" / name)
+
+
 def as_json(obj):
     """Compact JSON for passing config sections on a command line (quote with :q)."""
     return json.dumps(obj, sort_keys=True, separators=(",", ":"))
@@ -63,3 +68,31 @@ def gt_rgb_manifests(scene_ids=None):
         for t in _PLANS[sid]["trajectories"]
         for light in t["render_lights"]
     ]
+
+
+def parent_dir(wildcards, output):
+    """Folder of the rule's first output (files written beside their manifest)."""
+    return str(Path(output[0]).parent)
+
+
+def curated_dir(wildcards, output):
+    """Curated GLBs live in curated/ beside the manifest."""
+    return str(Path(output[0]).parent / "curated")
+
+
+def trajectory_dir(wildcards, output):
+    """results/gt/{scene}/{traj} from any of its outputs (buffers.json or rgb/{light}.json)."""
+    out = Path(output[0])
+    return str(out.parent.parent if out.parent.name == "rgb" else out.parent)
+
+
+def curation_inputs(wildcards):
+    if config["assets"]["source"] == "procedural":
+        return f"{OUT}/assets/raw/generated.json"
+    return []
+
+
+def curation_source_dir():
+    if config["assets"]["source"] == "procedural":
+        return f"{OUT}/assets/raw"
+    return config["assets"]["dir"]

@@ -9,18 +9,21 @@ rule render_buffers:
     output:
         buffers=f"{OUT}/gt/{{scene}}/{{traj}}/buffers.json",
         cameras=f"{OUT}/gt/{{scene}}/{{traj}}/cameras.json",
-    params:
-        out_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
     log:
         "logs/render_buffers/{scene}_{traj}.log",
     benchmark:
-        "benchmarks/render_buffers/{scene}_{traj}.tsv"
+        "logs/benchmark/render_buffers/{scene}_{traj}.tsv"
+    conda:
+        "../../envs/blender.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=60,
+    params:
+        script=script_path("render_gt.py"),
+        out_dir=trajectory_dir,
     shell:
-        "{PY} {workflow.basedir}/scripts/render_gt.py --scene {input.scene} --traj {wildcards.traj} "
+        "python {params.script} --scene {input.scene} --traj {wildcards.traj} "
         "--buffers {params.out_dir} --threads {threads} > {log} 2>&1"
 
 
@@ -35,16 +38,19 @@ rule render_rgb:
             category="Ground truth",
             labels={"scene": "{scene}", "trajectory": "{traj}", "lighting": "{light}"},
         ),
-    params:
-        out_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
     log:
         "logs/render_rgb/{scene}_{traj}_{light}.log",
     benchmark:
-        "benchmarks/render_rgb/{scene}_{traj}_{light}.tsv"
+        "logs/benchmark/render_rgb/{scene}_{traj}_{light}.tsv"
+    conda:
+        "../../envs/blender.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=120,
+    params:
+        script=script_path("render_gt.py"),
+        out_dir=trajectory_dir,
     shell:
-        "{PY} {workflow.basedir}/scripts/render_gt.py --scene {input.scene} --traj {wildcards.traj} "
+        "python {params.script} --scene {input.scene} --traj {wildcards.traj} "
         "--light {wildcards.light} --out {params.out_dir} --threads {threads} > {log} 2>&1"

@@ -6,16 +6,21 @@ rule sample_scene:
         manifest=f"{OUT}/assets/manifest.json",
     output:
         f"{OUT}/scenes/{{scene}}/scene.json",
-    params:
-        cfg=as_json({"seed": SEED, "scenes": config["scenes"], "render": config["render"]}),
     log:
         "logs/sample_scene/{scene}.log",
     benchmark:
-        "benchmarks/sample_scene/{scene}.tsv"
+        "logs/benchmark/sample_scene/{scene}.tsv"
+    conda:
+        "../../envs/assets.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=5,
+    params:
+        script=script_path("sample_scene.py"),
+        cfg=as_json(
+            {"seed": SEED, "scenes": config["scenes"], "render": config["render"]}
+        ),
     shell:
-        "{PY} {workflow.basedir}/scripts/sample_scene.py --scene-id {wildcards.scene} "
+        "python {params.script} --scene-id {wildcards.scene} "
         "--manifest {input.manifest} --config {params.cfg:q} --out {output} > {log} 2>&1"

@@ -1,0 +1,29 @@
+# The two commands a newcomer needs: `make run` (default pipeline) and `make test`.
+# Rules call `python`: the venv comes first on PATH (or a conda env with --use-conda).
+export PATH := $(CURDIR)/.venv/bin:$(PATH)
+SNAKEMAKE := snakemake
+PYTEST := pytest
+
+.PHONY: setup run test test-fast bench lint clean
+
+setup:
+	bash scripts/setup.sh
+
+run: setup
+	$(SNAKEMAKE)
+
+test: setup
+	$(PYTEST) -q
+
+test-fast: setup
+	$(PYTEST) -q -m "not slow"
+
+bench: setup
+	.venv/bin/python benchmarks/run_all.py
+
+lint: setup
+	$(SNAKEMAKE) --lint
+	.venv/bin/snakefmt --check Snakefile workflow/rules
+
+clean:
+	rm -rf results logs .snakemake

@@ -1,0 +1,96 @@
+"""Dry-run DAG tests: job counts per rule, and that a target pulls in only what it needs.
+
+These need an empty output state; they run in the repository and are skipped if results/
+already holds pipeline outputs (a developer's run), because then the counts differ.
+"""
+
+import time
+
+import pytest
+import yaml
+
+from lightcrafter import scenes
+from workflow_util import REPO, dry_run, dry_run_outputs, job_counts, venv_env
+
+pytestmark = pytest.mark.skipif((REPO / "results" / "assets").exists(),
+                                reason="results/ holds pipeline outputs; dry-run counts assume a clean tree "
+                                       "(CI runs on a clean clone)")
+
+
+def expected_gt_counts(cfg):
+    s = cfg["scenes"]
+    plans = [scenes.plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
+    trajs = [t for p in plans for t in p["trajectories"]]
+    return {
+        "generate_assets": 1 if cfg["assets"]["source"] == "procedural" else 0,
+        "curate_assets": 1,
+        "sample_scene": s["count"],
+        "render_buffers": len(trajs),
+        "render_rgb": sum(len(t["render_lights"]) for t in trajs),
+    }
+
+
+def test_default_config_ground_truth_counts(default_config):
+    res = dry_run("ground_truth")
+    assert res.returncode == 0, res.stderr
+    counts = job_counts(res.stdout)
+    exp = expected_gt_counts(default_config)
+    assert {k: counts.get(k, 0) for k in exp} == exp
+    # The default: 4 scenes x 3 trajectories, each using 2 of 4 lightings.
+    assert counts["render_buffers"] == 12 and counts["render_rgb"] == 24
+    # Nothing beyond ground truth is pulled in by this target.
+    assert set(counts) == set(exp) | {"ground_truth"}
+
+
+def test_paper_config_counts_and_dag_build_time(paper_config):
+    t0 = time.perf_counter()
+    res = dry_run("ground_truth", configfile="config/paper.yaml")
+    seconds = time.perf_counter() - t0
+    assert res.returncode == 0, res.stderr
+    counts = job_counts(res.stdout)
+    assert counts["sample_scene"] == 400
+    assert counts["render_buffers"] == 400 * 3
+    assert counts["render_rgb"] == 400 * 3 * 4  # 1 source + 3 targets: every lighting is used
+    print(f"paper-config dry run: {sum(counts.values())} jobs in {seconds:.1f} s")
+
+
+def test_single_rgb_target_pulls_only_its_chain(default_config):
+    plan = scenes.plan_scene(default_config["scenes"], 0, 0)
+    t = plan["trajectories"][0]
+    target = f"results/gt/s0000/{t['id']}/rgb/{t['source_light']}.json"
+    counts = job_counts(dry_run(target).stdout)
+    assert counts == {"generate_assets": 1, "curate_assets": 1, "sample_scene": 1, "render_rgb": 1}
+
+
+def test_unused_lighting_is_not_a_target(default_config):
+    plan = scenes.plan_scene(default_config["scenes"], 0, 0)
+    t = plan["trajectories"][0]
+    unused = sorted(set(plan["lighting_ids"]) - set(t["render_lights"]))
+    text = dry_run_outputs("ground_truth")
+    assert f"results/gt/s0000/{t['id']}/rgb/{t['source_light']}.json" in text
+    for light in unused:
+        assert f"results/gt/s0000/{t['id']}/rgb/{light}.json" not in text
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"scenes": {"widht": 96}}, "unknown key 'scenes.widht'"),
+    ({"scenes": {"num_frames": 0}}, "key 'scenes.num_frames'"),
+    ({"scenes": {"width": -96}}, "key 'scenes.width'"),
+    ({"scenes": {"objects_per_scene": 20}}, "key 'scenes.layout_radius_m'"),
+])
+def test_bad_config_stops_with_one_line_naming_the_key(tmp_path, change, key):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(change))
+    res = dry_run("ground_truth", configfile=str(bad))
+    assert res.returncode != 0
+    lines = [l for l in (res.stderr + res.stdout).splitlines() if "ConfigError" in l]
+    assert len(lines) == 1 and key in lines[0], res.stderr[-1500:]
+
+
+def test_lint_is_clean():
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "snakemake", "--lint"], cwd=REPO, capture_output=True, text=True,
+                         timeout=300, env=venv_env())
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]

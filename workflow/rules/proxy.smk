@@ -1,0 +1,34 @@
+# Forward renderer R (Mitsuba 3) on GROUND-TRUTH buffers: the clean_buffers dataset variant and the
+# Cycles cross-check (benchmarks/proxy_vs_cycles.py). One job per (trajectory, lighting).
+
+
+rule render_proxy_gt:
+    input:
+        buffers=f"{OUT}/gt/{{scene}}/{{traj}}/buffers.json",
+        scene=f"{OUT}/scenes/{{scene}}/scene.json",
+    output:
+        manifest=f"{OUT}/proxy_gt/{{scene}}/{{traj}}/{{light}}.json",
+        preview=report(
+            f"{OUT}/proxy_gt/{{scene}}/{{traj}}/{{light}}.mp4",
+            category="Proxy (GT buffers)",
+            labels={"scene": "{scene}", "trajectory": "{traj}", "lighting": "{light}"},
+        ),
+    params:
+        buffers_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
+        out_dir=f"{OUT}/proxy_gt/{{scene}}/{{traj}}/{{light}}",
+        spp=config["proxy"]["spp"],
+        visibility=config["proxy"]["visibility"],
+        rel_threshold=config["proxy"]["rel_threshold"],
+    log:
+        "logs/render_proxy_gt/{scene}_{traj}_{light}.log",
+    benchmark:
+        "logs/benchmark/render_proxy_gt/{scene}_{traj}_{light}.tsv"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    shell:
+        "{PY} {workflow.basedir}/scripts/render_proxy.py --buffers {params.buffers_dir} "
+        "--scene {input.scene} --traj {wildcards.traj} --light {wildcards.light} --out {params.out_dir} "
+        "--spp {params.spp} --visibility {params.visibility} --rel-threshold {params.rel_threshold} "
+        "--threads {threads} > {log} 2>&1"
