@@ -19,6 +19,7 @@ rule ground_truth:
     input:
         gt_buffer_manifests(),
         gt_rgb_manifests(),
+        f"{OUT}/summary/ground_truth.json",
 
 
 rule scene_specs:

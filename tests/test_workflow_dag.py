@@ -39,7 +39,7 @@ def test_default_config_ground_truth_counts(default_config):
     # The default: 4 scenes x 3 trajectories, each using 2 of 4 lightings.
     assert counts["render_buffers"] == 12 and counts["render_rgb"] == 24
     # Nothing beyond ground truth is pulled in by this target.
-    assert set(counts) == set(exp) | {"ground_truth"}
+    assert set(counts) == set(exp) | {"ground_truth", "summarize_ground_truth"}
 
 
 def test_paper_config_counts_and_dag_build_time(paper_config):

@@ -96,3 +96,8 @@ def curation_source_dir():
     if config["assets"]["source"] == "procedural":
         return f"{OUT}/assets/raw"
     return config["assets"]["dir"]
+
+
+def gt_root_of_inputs(wildcards, input):
+    """results/gt from results/gt/{scene}/{traj}/buffers.json inputs."""
+    return str(Path(input.buffers[0]).parents[2])

@@ -35,16 +35,19 @@ rule dataset_clean_buffers:
         clean_buffers_inputs,
     output:
         pairs=f"{OUT}/datasets/clean_buffers/pairs.jsonl",
-    params:
-        plans=refiner_plans_json,
     log:
         "logs/dataset/clean_buffers.log",
     benchmark:
         "logs/benchmark/dataset/clean_buffers.tsv"
+    conda:
+        "../../envs/refiner.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,
+    params:
+        script=script_path("build_dataset.py"),
+        plans=refiner_plans_json,
     shell:
-        "{PY} {workflow.basedir}/scripts/build_dataset.py --variant clean_buffers "
-        "--out-root {OUT} --plans-json {params.plans:q} --output {output.pairs} > {log} 2>&1"
+        "python {params.script} --variant clean_buffers "
+        "--plans-json {params.plans:q} --output {output.pairs} > {log} 2>&1"

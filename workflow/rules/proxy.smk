@@ -13,12 +13,6 @@ rule render_proxy_gt:
             category="Proxy (GT buffers)",
             labels={"scene": "{scene}", "trajectory": "{traj}", "lighting": "{light}"},
         ),
-    params:
-        buffers_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
-        out_dir=f"{OUT}/proxy_gt/{{scene}}/{{traj}}/{{light}}",
-        spp=config["proxy"]["spp"],
-        visibility=config["proxy"]["visibility"],
-        rel_threshold=config["proxy"]["rel_threshold"],
     log:
         "logs/render_proxy_gt/{scene}_{traj}_{light}.log",
     benchmark:
@@ -27,6 +21,12 @@ rule render_proxy_gt:
     resources:
         mem_mb=3000,
         runtime=30,
+    params:
+        buffers_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
+        out_dir=f"{OUT}/proxy_gt/{{scene}}/{{traj}}/{{light}}",
+        spp=config["proxy"]["spp"],
+        visibility=config["proxy"]["visibility"],
+        rel_threshold=config["proxy"]["rel_threshold"],
     shell:
         "{PY} {workflow.basedir}/scripts/render_proxy.py --buffers {params.buffers_dir} "
         "--scene {input.scene} --traj {wildcards.traj} --light {wildcards.light} --out {params.out_dir} "

@@ -45,19 +45,22 @@ rule train_refiner:
         pairs=refiner_pairs,
     output:
         model=f"{OUT}/refiner/{{variant}}/model.pt",
-    params:
-        cfg=refiner_config_json,
-        out_dir=f"{OUT}/refiner/{{variant}}",
     log:
         "logs/refiner/train_{variant}.log",
     benchmark:
         "logs/benchmark/refiner/train_{variant}.tsv"
+    conda:
+        "../../envs/refiner.yaml"
     threads: refiner_threads()
     resources:
         mem_mb=refiner_resource("mem_mb", 4000),
         runtime=refiner_resource("runtime", 120),
+    params:
+        script=script_path("train_refiner.py"),
+        cfg=refiner_config_json,
+        out_dir=f"{OUT}/refiner/{{variant}}",
     shell:
-        "{PY} {workflow.basedir}/scripts/train_refiner.py --pairs {input.pairs} "
+        "python {params.script} --pairs {input.pairs} "
         "--config-json {params.cfg:q} --out {params.out_dir} --threads {threads} > {log} 2>&1"
 
 
@@ -67,19 +70,22 @@ rule infer_refiner:
         pairs=refiner_pairs,
     output:
         manifest=f"{OUT}/refined/{{variant}}/manifest.json",
-    params:
-        cfg=refiner_infer_json,
-        out_dir=f"{OUT}/refined/{{variant}}",
     log:
         "logs/refiner/infer_{variant}.log",
     benchmark:
         "logs/benchmark/refiner/infer_{variant}.tsv"
+    conda:
+        "../../envs/refiner.yaml"
     threads: refiner_threads()
     resources:
         mem_mb=refiner_resource("mem_mb", 4000),
         runtime=refiner_resource("runtime", 120),
+    params:
+        script=script_path("infer_refiner.py"),
+        cfg=refiner_infer_json,
+        out_dir=f"{OUT}/refined/{{variant}}",
     shell:
-        "{PY} {workflow.basedir}/scripts/infer_refiner.py --model {input.model} --pairs {input.pairs} "
+        "python {params.script} --model {input.model} --pairs {input.pairs} "
         "--split test --config-json {params.cfg:q} --out {params.out_dir} --threads {threads} > {log} 2>&1"
 
 
@@ -89,17 +95,20 @@ rule evaluate_refiner:
         refined=f"{OUT}/refined/{{variant}}/manifest.json",
     output:
         metrics=f"{OUT}/eval/{{variant}}/metrics.json",
-    params:
-        exposure=config.get("refiner", {}).get("data", {}).get("exposure_ev", 0.0),
     log:
         "logs/refiner/evaluate_{variant}.log",
     benchmark:
         "logs/benchmark/refiner/evaluate_{variant}.tsv"
+    conda:
+        "../../envs/refiner.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=30,
+    params:
+        script=script_path("evaluate_refiner.py"),
+        exposure=config.get("refiner", {}).get("data", {}).get("exposure_ev", 0.0),
     shell:
-        "{PY} {workflow.basedir}/scripts/evaluate_refiner.py --pairs {input.pairs} "
+        "python {params.script} --pairs {input.pairs} "
         "--refined {input.refined} --split test --exposure-ev {params.exposure} "
         "--out {output.metrics} > {log} 2>&1"

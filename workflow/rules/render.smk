@@ -54,3 +54,28 @@ rule render_rgb:
     shell:
         "python {params.script} --scene {input.scene} --traj {wildcards.traj} "
         "--light {wildcards.light} --out {params.out_dir} --threads {threads} > {log} 2>&1"
+
+
+rule summarize_ground_truth:
+    input:
+        specs=expand(f"{OUT}/scenes/{{scene}}/scene.json", scene=SCENE_IDS),
+        buffers=gt_buffer_manifests(),
+        rgb=gt_rgb_manifests(),
+    output:
+        report(f"{OUT}/summary/ground_truth.json", category="Ground truth"),
+    log:
+        "logs/summarize_ground_truth.log",
+    benchmark:
+        "logs/benchmark/summarize_ground_truth.tsv"
+    conda:
+        "../../envs/assets.yaml"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    params:
+        script=script_path("summarize_gt.py"),
+        gt_root=gt_root_of_inputs,
+    shell:
+        "python {params.script} --gt-root {params.gt_root} --specs {input.specs} "
+        "--out {output} > {log} 2>&1"
