@@ -1,12 +1,15 @@
 # LightCrafter: synthetic scenes -> ground truth -> proxies -> pairs -> refiner -> evaluation.
 # Configuration: config/config.yaml (laptop default) or config/paper.yaml (paper scale);
 # every key is documented in config/README.md and validated against workflow/schemas/.
+from pathlib import Path
+
 from snakemake.utils import min_version
 
 min_version("9.0")
 
 
-configfile: "config/config.yaml"
+# The default config sits beside this file, whatever the working directory (--directory).
+configfile: str(Path(workflow.basedir) / "config" / "config.yaml")
 
 
 include: "workflow/rules/common.smk"

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .camera import intrinsics, opencv_c2w  # noqa: F401  (used by checks and tests)
+
 FORMAT = "lightcrafter.scene/1"
 MOTIONS = ("orbit_static", "dynamic_moving", "static_rotating_light")
 ELEVATION_GROUPS = ("upper", "middle", "lower", "random")
@@ -353,27 +355,6 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
 
 
 # ----------------------------------------------------------------------------- geometry checks
-def camera_c2w_opencv(cam_location_m, cam_target_m) -> np.ndarray:
-    """OpenCV camera-to-world for a look-at camera with world +Z as the up hint (no roll)."""
-    eye, tgt = np.asarray(cam_location_m, float), np.asarray(cam_target_m, float)
-    z = tgt - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    if np.linalg.norm(x) < 1e-9:
-        x = np.array([1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = x, y, z, eye
-    return c2w
-
-
-def intrinsics(width: int, height: int, fov_x_rad: float) -> np.ndarray:
-    """Pinhole K (pixels): square pixels, principal point at the image centre."""
-    f = 0.5 * width / math.tan(0.5 * fov_x_rad)
-    return np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
-
-
 def object_corners_world(obj: dict, pose: dict | None = None) -> np.ndarray:
     """8 corners (metres, world) of the object's bounding cylinder's enclosing box."""
     pose = pose or obj

@@ -134,7 +134,7 @@ def test_every_object_is_in_view_in_every_frame(default_config):
         K = scenes.intrinsics(W, H, spec["camera"]["fov_x_rad"])
         for t in spec["trajectories"]:
             for f in t["frames"]:
-                w2c = np.linalg.inv(scenes.camera_c2w_opencv(f["cam_location_m"], f["cam_target_m"]))
+                w2c = np.linalg.inv(scenes.opencv_c2w(f["cam_location_m"], f["cam_target_m"]))
                 for o in spec["objects"]:
                     pts = scenes.object_corners_world(o, f.get("objects", {}).get(o["id"]))
                     cam = (w2c[:3, :3] @ pts.T).T + w2c[:3, 3]

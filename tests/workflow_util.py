@@ -12,10 +12,12 @@ SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 
 
 def dry_run(*targets: str, configfile: str | None = None, extra: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
-    """``snakemake -n TARGETS --quiet rules`` in a scratch copy of the output state (none)."""
-    cmd = [*SNAKEMAKE, "-n", *targets, "--quiet", "rules", "--cores", "1"]
+    """``snakemake -n TARGETS --quiet rules`` in an empty working directory (nothing built yet)."""
+    import tempfile
+
+    cmd = [*SNAKEMAKE, "-n", *targets, "--quiet", "rules", "--cores", "1", "-d", tempfile.mkdtemp(prefix="dag-")]
     if configfile:
-        cmd += ["--configfile", configfile]
+        cmd += ["--configfile", str((REPO / configfile).resolve())]
     cmd += list(extra)
     return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, env=venv_env())
 
@@ -31,7 +33,9 @@ def venv_env() -> dict:
 
 def dry_run_outputs(*targets: str) -> str:
     """A verbose dry run's text: every planned job with its output paths."""
-    cmd = [*SNAKEMAKE, "-n", *targets, "--cores", "1"]
+    import tempfile
+
+    cmd = [*SNAKEMAKE, "-n", *targets, "--cores", "1", "-d", tempfile.mkdtemp(prefix="dag-")]
     return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, env=venv_env()).stdout
 
 

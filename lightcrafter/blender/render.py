@@ -1,0 +1,227 @@
+"""Render ground truth for one trajectory of a scene spec: G-buffers + cameras, and linear RGB per lighting.
+
+Output layout (``out_dir`` is the trajectory folder, ``results/gt/{scene}/{traj}``)::
+
+    cameras.json                  all num_frames cameras, OpenCV convention (lightcrafter.io.write_cameras)
+    buffers/{frame:04d}.exr       G-buffers of the distinct frames only (``buffer_frames``)
+    buffers.json                  manifest, written last: which buffer file serves each frame
+    rgb/{light}/{frame:04d}.exr   linear HDR RGB (scene-referred, no view transform)
+    rgb/{light}.mp4               display preview (lightcrafter.io.linear_to_display, exposure 0 EV)
+    rgb/{light}.json              manifest, written last
+
+Resumable: every frame is written atomically; frames already present and readable are skipped, and
+the manifest is written only when every frame exists. The render functions return how many frames
+they actually rendered (0 on a complete rerun).
+
+Sampling choices
+----------------
+* Buffers: 1 sample per pixel through a box pixel filter of width 0.01 px, i.e. one ray through the
+  pixel centre. Depth, normal, albedo, roughness, metallic and mask therefore all describe the *same*
+  surface point (no blur, no mixed edge pixels, mask exactly 0/1), which matches Cycles' Z pass (one
+  sample per pixel) and the OpenCV pixel-centre convention of ``K``. Textures are point-sampled
+  (aliased, as any G-buffer). Light bounces are 0: only first-hit passes are needed.
+* RGB: ``spec.render.spp`` samples, Cycles' default Blackman-Harris filter (1.5 px), ``max_bounces``
+  from the spec, fixed seed, no denoiser (see benchmarks/cycles_spp.py for the spp choice).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from lightcrafter import io
+from lightcrafter.blender import build
+
+BUFFER_SPP = 1
+BUFFER_FILTER_WIDTH_PX = 0.01  # Cycles' minimum: a point sample at the pixel centre
+RGB_FILTER_WIDTH_PX = 1.5  # Cycles' default Blackman-Harris width
+BACKGROUND_DEPTH = 1e9  # Cycles writes 1e10 on background in the Z pass
+
+
+# ----------------------------------------------------------------------------- pure helpers
+def cameras(spec: dict, traj_id: str) -> tuple[np.ndarray, np.ndarray]:
+    """Intrinsics K (N, 3, 3, pixels) and OpenCV camera-to-world c2w (N, 4, 4, world metres) of every frame."""
+    traj = build.trajectory(spec, traj_id)
+    w, h = spec["resolution"]["width"], spec["resolution"]["height"]
+    K = build.intrinsics(w, h, float(spec["camera"]["fov_x_rad"]))
+    c2w = np.stack([build.opencv_c2w(f["cam_location_m"], f["cam_target_m"]) for f in traj["frames"]])
+    return np.repeat(K[None], len(c2w), axis=0), c2w
+
+
+def buffer_frame_of(spec: dict, traj_id: str) -> list[int]:
+    """For every frame index, the index of the frame whose buffers serve it.
+
+    ``buffer_frames`` = 1 (static camera over a static scene): every frame uses frame 0's buffers;
+    ``buffer_frames`` = num_frames: each frame has its own.
+    """
+    traj = build.trajectory(spec, traj_id)
+    n = int(spec["num_frames"])
+    nb = int(traj.get("buffer_frames", n))
+    if nb == 1:
+        return [0] * n
+    if nb == n:
+        return list(range(n))
+    raise io.DataError(f"trajectory {traj_id!r}: buffer_frames={nb}, expected 1 or num_frames={n}; re-sample the scene")
+
+
+def layers_to_buffers(ch: dict[str, np.ndarray]) -> io.Buffers:
+    """Convert Cycles passes (keys like ``Depth.Z``, ``Normal.X``, ``albedo.R``) to the buffer contract.
+
+    Depth is Cycles' Z pass, already planar camera z in metres (checked against a camera looking
+    straight at a plane); background (1e10) becomes +inf. Normals (world space, antialiased in
+    general) are re-normalised. Materials are clipped to [0, 1]. Mask = alpha > 0.5 and finite depth.
+    """
+    depth = ch["Depth.Z"].astype(np.float32)
+    mask = (ch["Combined.A"] > 0.5) & np.isfinite(depth) & (depth < BACKGROUND_DEPTH) & (depth > 0)
+    normal = np.stack([ch[f"Normal.{c}"] for c in "XYZ"], axis=-1)
+    length = np.linalg.norm(normal, axis=-1, keepdims=True)
+    mask &= length[..., 0] > 1e-6
+    normal = np.where(mask[..., None], normal / np.maximum(length, 1e-12), 0.0)
+    albedo = np.clip(np.stack([ch[f"{build.AOV_ALBEDO}.{c}"] for c in "RGB"], axis=-1), 0.0, 1.0)
+    return io.Buffers(
+        depth=np.where(mask, depth, np.inf).astype(np.float32),
+        normal=normal.astype(np.float32),
+        albedo=np.where(mask[..., None], albedo, 0.0).astype(np.float32),
+        roughness=np.where(mask, np.clip(ch[f"{build.AOV_ROUGHNESS}.X"], 0.0, 1.0), 0.0).astype(np.float32),
+        metallic=np.where(mask, np.clip(ch[f"{build.AOV_METALLIC}.X"], 0.0, 1.0), 0.0).astype(np.float32),
+        mask=mask.astype(np.float32),
+    )
+
+
+def _readable(path: Path, reader) -> bool:
+    if not path.is_file():
+        return False
+    try:
+        reader(path)
+        return True
+    except io.DataError:
+        return False
+
+
+# ----------------------------------------------------------------------------- Blender
+def render_layers() -> dict[str, np.ndarray]:
+    """Render the current bpy scene once; return its passes as float32 (H, W) arrays keyed ``Pass.Channel``."""
+    import bpy
+
+    with tempfile.TemporaryDirectory(prefix="lc_cycles_") as tmp:
+        path = Path(tmp) / "layers.exr"
+        bpy.context.scene.render.filepath = str(path)
+        bpy.ops.render.render(write_still=True)
+        ch = io.read_exr(path)
+    return {k.split(".", 1)[1]: v for k, v in ch.items()}
+
+
+def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = None) -> int:
+    """Render G-buffers of the trajectory's distinct frames, cameras.json and buffers.json into ``out_dir``.
+
+    Returns the number of buffer frames rendered (frames already complete are skipped).
+    """
+    out_dir = Path(out_dir)
+    traj = build.trajectory(spec, traj_id)
+    serve = buffer_frame_of(spec, traj_id)
+    distinct = sorted(set(serve))
+    files = {i: out_dir / "buffers" / f"{i:04d}.exr" for i in distinct}
+    todo = [i for i in distinct if not _readable(files[i], io.read_buffers)]
+    build.check_inputs(spec)
+    if todo:
+        built = build.build_scene(spec, light_id=None)
+        build.configure_render(
+            spec,
+            samples=BUFFER_SPP,
+            max_bounces=0,
+            filter_width_px=BUFFER_FILTER_WIDTH_PX,
+            film_transparent=True,
+            buffers=True,
+            threads=threads,
+        )
+        for i in todo:
+            build.set_frame(built, traj["frames"][i])
+            io.write_buffers(files[i], layers_to_buffers(render_layers()))
+    K, c2w = cameras(spec, traj_id)
+    w, h = spec["resolution"]["width"], spec["resolution"]["height"]
+    io.write_cameras(out_dir / "cameras.json", w, h, K, c2w)
+    io.write_json(
+        out_dir / "buffers.json",
+        {
+            "format": "lightcrafter.buffers/1",
+            "scene_id": spec.get("scene_id"),
+            "trajectory": traj_id,
+            "width": w,
+            "height": h,
+            "num_frames": len(serve),
+            "buffer_frames": len(distinct),
+            "frames": [f"buffers/{j:04d}.exr" for j in serve],
+            "cameras": "cameras.json",
+            "render": {"engine": "cycles", "spp": BUFFER_SPP, "pixel_filter": f"box {BUFFER_FILTER_WIDTH_PX} px"},
+        },
+    )
+    return len(todo)
+
+
+def render_rgb(
+    spec: dict, traj_id: str, light_id: str, out_dir, *, threads: int | None = None, spp: int | None = None
+) -> int:
+    """Render linear HDR RGB frames of the trajectory under lighting ``light_id``, the preview and manifest.
+
+    Only lightings in the trajectory's ``render_lights`` may be rendered. ``spp`` overrides
+    ``spec.render.spp``. Returns the number of frames rendered (complete frames are skipped).
+    """
+    out_dir = Path(out_dir)
+    traj = build.trajectory(spec, traj_id)
+    if light_id not in traj.get("render_lights", [light_id]):
+        raise io.DataError(
+            f"lighting {light_id!r}: not in render_lights {traj['render_lights']} of "
+            f"trajectory {traj_id!r}; no pair uses it, so it is not rendered"
+        )
+    rcfg = spec.get("render", {})
+    spp = int(spp or rcfg.get("spp", 16))
+    n = int(spec["num_frames"])
+    files = [out_dir / "rgb" / light_id / f"{i:04d}.exr" for i in range(n)]
+    todo = [i for i in range(n) if not _readable(files[i], io.read_rgb_exr)]
+    build.check_inputs(spec, light_id)
+    if todo:
+        built = build.build_scene(spec, light_id=light_id)
+        build.configure_render(
+            spec,
+            samples=spp,
+            max_bounces=int(rcfg.get("max_bounces", 4)),
+            filter_width_px=RGB_FILTER_WIDTH_PX,
+            film_transparent=False,
+            buffers=False,
+            threads=threads,
+        )
+        for i in todo:
+            build.set_frame(built, traj["frames"][i])
+            ch = render_layers()
+            io.write_rgb_exr(files[i], np.stack([ch[f"Combined.{c}"] for c in "RGB"], axis=-1))
+    frames = np.stack([io.read_rgb_exr(f) for f in files])
+    io.write_video(
+        out_dir / "rgb" / f"{light_id}.mp4", io.to_uint8(io.linear_to_display(frames)), fps=float(spec.get("fps", 24))
+    )
+    io.write_json(
+        out_dir / "rgb" / f"{light_id}.json",
+        {
+            "format": "lightcrafter.rgb/1",
+            "scene_id": spec.get("scene_id"),
+            "trajectory": traj_id,
+            "light": light_id,
+            "width": spec["resolution"]["width"],
+            "height": spec["resolution"]["height"],
+            "num_frames": n,
+            "fps": spec.get("fps", 24),
+            "frames": [f"rgb/{light_id}/{i:04d}.exr" for i in range(n)],
+            "preview": f"rgb/{light_id}.mp4",
+            "radiance": "linear scene-referred (no view transform)",
+            "render": {
+                "engine": "cycles",
+                "spp": spp,
+                "max_bounces": int(rcfg.get("max_bounces", 4)),
+                "seed": int(rcfg.get("seed", 0)),
+                "pixel_filter": f"blackman-harris {RGB_FILTER_WIDTH_PX} px",
+                "denoiser": None,
+            },
+        },
+    )
+    return len(todo)

@@ -1,0 +1,332 @@
+"""Ground-truth rendering with Blender: buffer correctness, counts, resume and bad input.
+
+The scene is lightcrafter.blender.testing.tiny_spec (96x64): three primitives and a trimesh-made
+textured GLB with known materials on a checker ground.
+"""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lightcrafter import io
+from lightcrafter.blender import build, testing
+from lightcrafter.lights import builtin_hdris, resolve_hdri
+
+REPO = Path(__file__).resolve().parents[1]
+MATERIAL_TOL = 1e-4  # measured max deviation 6e-7 (AOVs are float copies; the GLB texture decode is exact)
+UNPROJ_MEDIAN_MM, UNPROJ_P90_MM = 0.5, 2.0  # measured: median ~0.003 mm, p90 ~0.01 mm
+
+
+# ----------------------------------------------------------------------------- helpers
+def unproject(depth_m: np.ndarray, K: np.ndarray, c2w: np.ndarray) -> np.ndarray:
+    """World points (H, W, 3) of every pixel (OpenCV pixel centres at integer u, v); NaN where invalid."""
+    h, w = depth_m.shape
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T
+    pts = rays * np.where(np.isfinite(depth_m), depth_m, np.nan)[..., None]
+    return pts @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def cross_frame_error_mm(depth_a, K_a, c2w_a, depth_b, K_b, c2w_b) -> tuple[np.ndarray, float]:
+    """Distance (mm) between a surface point unprojected from frame A and the same ray's point from frame B.
+
+    Every valid pixel of A is unprojected to world, projected into B, and B's depth is interpolated
+    there (bilinear in inverse depth, exact on planes). Points occluded in B (B's surface > 1 cm in
+    front) and lookups straddling a depth discontinuity (> 5 %) are excluded; the returned fraction
+    says how many of A's in-view points were kept.
+    """
+    X = unproject(depth_a, K_a, c2w_a).reshape(-1, 3)
+    X = X[np.isfinite(X).all(1)]
+    w2c = np.linalg.inv(c2w_b)
+    pc = X @ w2c[:3, :3].T + w2c[:3, 3]
+    z = pc[:, 2]
+    uv = (pc @ K_b.T)[:, :2] / z[:, None]
+    h, w = depth_b.shape
+    u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+    inside = (z > 0) & (u0 >= 0) & (v0 >= 0) & (u0 < w - 1) & (v0 < h - 1)
+    uv, z, u0, v0 = uv[inside], z[inside], u0[inside], v0[inside]
+    d = np.stack([depth_b[v0 + dv, u0 + du] for dv in (0, 1) for du in (0, 1)], 1)
+    fu, fv = uv[:, 0] - u0, uv[:, 1] - v0
+    wts = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_b = 1.0 / (wts / d).sum(1)
+        continuous = np.isfinite(d).all(1) & (d.max(1) / d.min(1) < 1.05)
+    keep = continuous & ~(z_b < z - 0.01)
+    ray_len = np.linalg.norm(np.c_[(uv - K_b[:2, 2]) / np.diag(K_b)[:2], np.ones(len(z))], axis=1)
+    return np.abs(z_b - z)[keep] * ray_len[keep] * 1000.0, float(keep.mean())
+
+
+def nearest_material(albedo, rough, metal):
+    """Index of the closest known material and the max abs deviation from it, per pixel."""
+    known = testing.known_materials()
+    table = np.array([[*c, r, m] for c, r, m in known.values()])
+    px = np.c_[albedo, rough, metal]
+    dev = np.abs(px[:, None, :] - table[None]).max(-1)
+    idx = dev.argmin(1)
+    return list(known), idx, dev[np.arange(len(px)), idx]
+
+
+# ----------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    work = tmp_path_factory.mktemp("gt")
+    spec = testing.tiny_spec(work, num_frames=3, spp=4)
+    io.write_json(work / "scene.json", spec)
+    return spec, work
+
+
+@pytest.fixture(scope="module")
+def orbit_buffers(scene):
+    from lightcrafter.blender import render
+
+    spec, work = scene
+    out = work / "orbit"
+    n = render.render_buffers(spec, "orbit", out)
+    return out, n
+
+
+# ----------------------------------------------------------------------------- fast tests
+def test_builtin_hdris_resolve():
+    names = builtin_hdris()
+    assert len(names) == 8 and "forest.exr" in names and names == sorted(names)
+    assert resolve_hdri("builtin:forest.exr").is_file()
+
+
+def test_missing_hdri_is_one_line_data_error(tmp_path):
+    for ref in ("builtin:nope.exr", str(tmp_path / "nope.exr")):
+        with pytest.raises(io.DataError) as err:
+            resolve_hdri(ref)
+        msg = str(err.value)
+        assert "nope.exr" in msg and "\n" not in msg
+
+
+def test_intrinsics_and_look_at():
+    K = build.intrinsics(96, 64, 0.87)
+    assert K[0, 2] == 47.5 and K[1, 2] == 31.5 and K[0, 0] == K[1, 1]
+    c2w = build.opencv_c2w([3.0, 0.0, 1.0], [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(c2w[:3, 2], [-1, 0, 0], atol=1e-12)  # looks along -X
+    np.testing.assert_allclose(c2w[:3, 1], [0, 0, -1], atol=1e-12)  # image y points down
+    np.testing.assert_allclose(c2w[:3, :3] @ c2w[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- Blender tests
+@pytest.mark.slow
+def test_blender_camera_matches_cameras_json(scene):
+    """Blender's own camera and projection agree with K / c2w (OpenCV, pixel centres at integers)."""
+    import bpy
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    from lightcrafter.blender import render
+
+    spec, _ = scene
+    built = build.build_scene(spec)
+    K, c2w = render.cameras(spec, "orbit")
+    w, h = spec["resolution"]["width"], spec["resolution"]["height"]
+    pts = np.array([[0.3, 0.2, 0.1], [-1.0, 0.5, 0.0], [0.5, -0.7, 0.9]])
+    for i, frame in enumerate(spec["trajectories"][0]["frames"]):
+        build.set_frame(built, frame)
+        np.testing.assert_allclose(np.array(built.camera.matrix_world) @ build.BLENDER_FROM_OPENCV, c2w[i], atol=1e-5)
+        for p in pts:
+            ndc = world_to_camera_view(bpy.context.scene, built.camera, Vector(p.tolist()))
+            pc = np.linalg.inv(c2w[i]) @ np.r_[p, 1.0]
+            uv = (K[i] @ pc[:3])[:2] / pc[2]
+            np.testing.assert_allclose(uv, [ndc.x * w - 0.5, (1.0 - ndc.y) * h - 0.5], atol=1e-3)
+
+
+@pytest.mark.slow
+def test_normals_unit_and_materials_in_range(orbit_buffers):
+    out, n = orbit_buffers
+    assert n == 3
+    for f in sorted((out / "buffers").glob("*.exr")):
+        b = io.read_buffers(f)
+        m = b.mask > 0.5
+        assert 0.5 < m.mean() < 1.0  # objects and ground in view, some sky
+        np.testing.assert_allclose(np.linalg.norm(b.normal[m], axis=-1), 1.0, atol=1e-4)
+        assert np.isfinite(b.depth[m]).all() and (b.depth[m] > 0).all() and np.isinf(b.depth[~m]).all()
+        for arr in (b.albedo, b.roughness, b.metallic):
+            assert arr.min() >= 0.0 and arr.max() <= 1.0
+
+
+@pytest.mark.slow
+def test_materials_equal_known_values(orbit_buffers):
+    """Every surface pixel carries exactly one known (albedo, roughness, metallic) triple; all surfaces seen."""
+    out, _ = orbit_buffers
+    b = io.read_buffers(out / "buffers" / "0000.exr")
+    m = b.mask > 0.5
+    names, idx, dev = nearest_material(b.albedo[m], b.roughness[m], b.metallic[m])
+    print(f"material deviation: max {dev.max():.2e}, tolerance {MATERIAL_TOL}")
+    assert dev.max() < MATERIAL_TOL
+    counts = {name: int((idx == k).sum()) for k, name in enumerate(names)}
+    assert all(c >= 20 for c in counts.values()), counts
+    # The ground is flat and horizontal: its normals point up.
+    ground = np.isin(idx, [names.index("ground_a"), names.index("ground_b")])
+    np.testing.assert_allclose(b.normal[m][ground], np.broadcast_to([0.0, 0.0, 1.0], (int(ground.sum()), 3)), atol=1e-4)
+
+
+@pytest.mark.slow
+def test_depth_unprojects_to_same_world_points(orbit_buffers):
+    out, _ = orbit_buffers
+    w, h, K, c2w = io.read_cameras(out / "cameras.json")
+    assert (w, h) == (96, 64) and len(K) == 3
+    manifest = io.read_json(out / "buffers.json")
+    depth = [io.read_buffers(out / f).depth for f in manifest["frames"]]
+    err, kept = cross_frame_error_mm(depth[0], K[0], c2w[0], depth[2], K[2], c2w[2])
+    med, p90 = np.median(err), np.percentile(err, 90)
+    print(f"unprojection error frame 0 -> 2: median {med:.4f} mm, p90 {p90:.4f} mm, kept {kept:.0%}")
+    assert kept > 0.7
+    assert med < UNPROJ_MEDIAN_MM and p90 < UNPROJ_P90_MM
+    # The check can fail: a camera 1 cm too high (or a half-pixel principal-point error) breaks the bound.
+    moved = c2w[2].copy()
+    moved[:3, 3] += [0.0, 0.0, 0.01]  # vertical: a horizontal shift leaves the ground plane unchanged
+    err_bad, _ = cross_frame_error_mm(depth[0], K[0], c2w[0], depth[2], K[2], moved)
+    K_bad = K.copy()
+    K_bad[:, 0, 2] += 0.5
+    err_half, _ = cross_frame_error_mm(depth[0], K_bad[0], c2w[0], depth[2], K_bad[2], c2w[2])
+    print(
+        f"negative controls: p90 {np.percentile(err_bad, 90):.2f} mm (camera 1 cm high), "
+        f"{np.percentile(err_half, 90):.2f} mm (principal point +0.5 px)"
+    )
+    assert np.percentile(err_bad, 90) > UNPROJ_P90_MM
+    assert np.percentile(err_half, 90) > UNPROJ_P90_MM
+
+
+@pytest.mark.slow
+def test_static_camera_renders_one_buffer_frame_and_only_render_lights(scene):
+    from lightcrafter.blender import render
+
+    spec, work = scene
+    out = work / "static"
+    assert render.render_buffers(spec, "static", out) == 1
+    assert sorted(p.name for p in (out / "buffers").glob("*.exr")) == ["0000.exr"]
+    manifest = io.read_json(out / "buffers.json")
+    assert manifest["frames"] == ["buffers/0000.exr"] * spec["num_frames"] and manifest["buffer_frames"] == 1
+    assert len(io.read_cameras(out / "cameras.json")[2]) == spec["num_frames"]
+    with pytest.raises(io.DataError, match="render_lights"):
+        render.render_rgb(spec, "static", "L1", out)  # L1 is used by no pair of this trajectory
+    assert not (out / "rgb").exists()
+
+
+@pytest.mark.slow
+def test_rgb_frames_and_resume(scene, orbit_buffers):
+    from lightcrafter.blender import render
+
+    spec, work = scene
+    out, _ = orbit_buffers
+    assert render.render_rgb(spec, "orbit", "L0", out) == 3
+    frames = [io.read_rgb_exr(out / f) for f in io.read_json(out / "rgb" / "L0.json")["frames"]]
+    assert len(frames) == 3
+    for rgb in frames:
+        assert rgb.shape == (64, 96, 3) and np.isfinite(rgb).all() and rgb.min() >= 0.0 and rgb.mean() > 0.01
+    assert (out / "rgb" / "L0.mp4").stat().st_size > 0
+    # Resume: nothing left to do; a deleted or corrupt frame is the only one re-rendered.
+    assert render.render_rgb(spec, "orbit", "L0", out) == 0
+    assert render.render_buffers(spec, "orbit", out) == 0
+    (out / "rgb" / "L0" / "0001.exr").unlink()
+    (out / "buffers" / "0002.exr").write_bytes(b"truncated")
+    assert render.render_rgb(spec, "orbit", "L0", out) == 1
+    assert render.render_buffers(spec, "orbit", out) == 1
+    # Deterministic up to float round-off (fixed seed; multi-threaded BVH builds differ by ~1e-5).
+    np.testing.assert_allclose(io.read_rgb_exr(out / "rgb" / "L0" / "0001.exr"), frames[1], rtol=1e-3, atol=1e-4)
+
+
+def _run_cli(*args) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "render_gt.py"), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+@pytest.mark.slow
+def test_cli_bad_input_one_line_error_no_manifest(scene, tmp_path):
+    spec, work = scene
+    bad_hdri = copy.deepcopy(spec)
+    bad_hdri["lightings"][0]["hdri"] = "builtin:nope.exr"
+    corrupt = copy.deepcopy(spec)
+    glb = tmp_path / "corrupt.glb"
+    glb.write_bytes(b"glTF\x02\x00\x00\x00" + b"garbage" * 20)
+    corrupt["objects"][3]["path"] = str(glb)
+    io.write_json(tmp_path / "bad_hdri.json", bad_hdri)
+    io.write_json(tmp_path / "corrupt.json", corrupt)
+    cases = [
+        (
+            ["--scene", tmp_path / "bad_hdri.json", "--traj", "orbit", "--light", "L0", "--out", tmp_path / "o1"],
+            "nope.exr",
+        ),
+        (["--scene", tmp_path / "corrupt.json", "--traj", "orbit", "--buffers", tmp_path / "o2"], "corrupt.glb"),
+        (["--scene", tmp_path / "missing.json", "--traj", "orbit", "--buffers", tmp_path / "o3"], "missing.json"),
+    ]
+    for args, name in cases:
+        res = _run_cli(*args)
+        assert res.returncode == 1, res.stderr
+        lines = res.stderr.strip().splitlines()
+        assert len(lines) == 1 and name in lines[0], res.stderr
+    assert not list(tmp_path.glob("o*/**/*.json"))
+
+
+@pytest.mark.slow
+def test_cli_renders_static_buffers(scene, tmp_path):
+    _, work = scene
+    res = _run_cli("--scene", work / "scene.json", "--traj", "static", "--buffers", tmp_path / "static")
+    assert res.returncode == 0, res.stderr
+    assert io.read_json(tmp_path / "static" / "buffers.json")["buffer_frames"] == 1
+
+
+@pytest.mark.slow
+def test_ground_patterns_texture_set_and_moving_object(scene, tmp_path):
+    """Every procedural pattern builds; a texture-set ground's albedo is its image; moving objects move."""
+    from PIL import Image
+
+    from lightcrafter.blender import render
+
+    spec, _ = scene
+    base = copy.deepcopy(spec)
+    base["num_frames"] = 1
+    for t in base["trajectories"]:
+        t["frames"], t["buffer_frames"] = t["frames"][:1], 1
+    for pattern in ("noise", "bricks", "voronoi"):
+        s = copy.deepcopy(base)
+        s["ground"]["material"]["pattern"] = pattern
+        assert render.render_buffers(s, "static", tmp_path / pattern) == 1
+        b = io.read_buffers(tmp_path / pattern / "buffers" / "0000.exr")
+        assert b.albedo[b.mask > 0].std(axis=0).max() > 0.01  # the pattern varies the ground colour
+
+    tex = tmp_path / "tex"
+    tex.mkdir()
+    Image.new("RGB", (16, 16), (64, 128, 200)).save(tex / "Ground_BaseColor.png")
+    Image.new("L", (16, 16), 153).save(tex / "Ground_Roughness.png")
+    Image.new("RGB", (16, 16), (128, 128, 255)).save(tex / "Ground_NormalGL.png")
+    s = copy.deepcopy(base)
+    s["ground"]["material"] = {"type": "texture_set", "dir": str(tex), "scale_m": 2.0}
+    s["objects"] = []
+    assert render.render_buffers(s, "static", tmp_path / "texset") == 1
+    b = io.read_buffers(tmp_path / "texset" / "buffers" / "0000.exr")
+    m = b.mask > 0
+    np.testing.assert_allclose(
+        b.albedo[m], np.broadcast_to(testing.srgb8_to_linear((64, 128, 200)), (int(m.sum()), 3)), atol=1e-4
+    )
+    np.testing.assert_allclose(b.roughness[m], 153 / 255, atol=2e-3)  # Non-Color: the raw 8-bit value
+    np.testing.assert_allclose(b.normal[m][:, 2], 1.0, atol=2e-2)  # flat normal map: normals stay up
+    s["ground"]["material"]["dir"] = str(tmp_path / "nope")
+    with pytest.raises(io.DataError, match="nope"):
+        render.render_buffers(s, "static", tmp_path / "texset2")
+
+    s = copy.deepcopy(spec)  # the cube slides 0.3 m along +x in frame 2; nothing else changes
+    frame2 = s["trajectories"][1]["frames"][2]
+    frame2["objects"] = {"p0": {"location_m": [1.0, -0.2, 0.0], "rotation_euler_rad": [0.0, 0.0, 0.4]}}
+    s["trajectories"][1]["buffer_frames"] = s["num_frames"]
+    assert render.render_buffers(s, "static", tmp_path / "moving") == 3
+    d = [io.read_buffers(tmp_path / "moving" / "buffers" / f"{i:04d}.exr").depth for i in range(3)]
+    np.testing.assert_array_equal(d[0], d[1])
+    changed = np.isfinite(d[2]) != np.isfinite(d[0])
+    both = np.isfinite(d[2]) & np.isfinite(d[0])
+    changed[both] = np.abs(d[2][both] - d[0][both]) > 0.05
+    assert changed.sum() > 20
