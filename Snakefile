@@ -16,6 +16,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/assets.smk"
 include: "workflow/rules/scenes.smk"
 include: "workflow/rules/render.smk"
+include: "workflow/rules/report.smk"
 
 
 rule ground_truth:
@@ -34,3 +35,4 @@ rule all:
     default_target: True
     input:
         rules.ground_truth.input,
+        f"{OUT}/report/index.html",

@@ -101,3 +101,13 @@ def curation_source_dir():
 def gt_root_of_inputs(wildcards, input):
     """results/gt from results/gt/{scene}/{traj}/buffers.json inputs."""
     return str(Path(input.buffers[0]).parents[2])
+
+
+def report_inputs():
+    """What the run report summarises (grows as stages are added)."""
+    return [f"{OUT}/summary/ground_truth.json"]
+
+
+def results_root(wildcards, output):
+    """results/ from results/report/index.html."""
+    return str(Path(output[0]).parents[1])

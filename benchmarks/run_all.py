@@ -1,0 +1,46 @@
+"""Run every benchmark (each writes results/bench/<name>.json), then build the report.
+
+    make bench            # all of them
+    make bench ONLY=cycles_spp,proxy_spp
+
+Benchmarks that need pipeline outputs (e.g. proxy_vs_cycles, which reads results/gt) run the
+default pipeline's ground truth first via Snakemake.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+ORDER = ["cycles_spp", "proxy_spp", "proxy_vs_cycles", "refiner"]
+NEEDS_GROUND_TRUTH = {"proxy_vs_cycles"}
+
+
+def main() -> int:
+    sys.path.insert(0, str(REPO))
+    only = [s for s in os.environ.get("ONLY", "").split(",") if s]
+    names = [n for n in ORDER if (REPO / "benchmarks" / f"{n}.py").is_file() and (not only or n in only)]
+    failed = []
+    for name in names:
+        if name in NEEDS_GROUND_TRUTH:
+            subprocess.run([sys.executable, "-m", "snakemake", "ground_truth"], cwd=REPO, check=True)
+        t0 = time.perf_counter()
+        print(f"== benchmark {name}", flush=True)
+        res = subprocess.run([sys.executable, str(REPO / "benchmarks" / f"{name}.py")], cwd=REPO)
+        print(f"== {name}: exit {res.returncode} after {time.perf_counter() - t0:.0f} s", flush=True)
+        if res.returncode:
+            failed.append(name)
+    from lightcrafter.report import build_report
+
+    print(f"report: {build_report(REPO / 'results')}")
+    if failed:
+        print(f"failed: {failed}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
