@@ -16,6 +16,9 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/assets.smk"
 include: "workflow/rules/scenes.smk"
 include: "workflow/rules/render.smk"
+include: "workflow/rules/proxy.smk"
+include: "workflow/rules/dataset.smk"
+include: "workflow/rules/refiner.smk"
 include: "workflow/rules/report.smk"
 
 
@@ -35,4 +38,5 @@ rule all:
     default_target: True
     input:
         rules.ground_truth.input,
+        refiner_outputs(),
         f"{OUT}/report/index.html",

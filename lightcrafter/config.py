@@ -39,7 +39,16 @@ def check_config(config: dict, schema_path: str | Path, source: str = "config") 
 
 
 def check_semantics(config: dict, source: str = "config") -> None:
-    """Checks a schema cannot express: combinations of keys that make a scene impossible."""
+    """Checks a schema cannot express: combinations of keys that make a scene impossible,
+    and the refiner's own key-by-key validation."""
+    if "refiner" in config:
+        from .refiner.config import resolve_config
+
+        try:
+            resolve_config({k: v for k, v in config["refiner"].items() if k != "resources"})
+        except (KeyError, ValueError) as exc:
+            msg = exc.args[0] if exc.args else str(exc)
+            raise ConfigError(f"{source}: refiner: {msg}; fix it (see config/README.md)") from None
     a, s = config.get("assets", {}), config.get("scenes", {})
     if a.get("source") == "folder" and not a.get("dir"):
         raise ConfigError(f"{source}: key 'assets.dir' must name a folder of .glb files when assets.source is 'folder'")

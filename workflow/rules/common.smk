@@ -17,12 +17,17 @@ OUT = config["output_dir"]
 SEED = config["seed"]
 SCENE_IDS = scene_ids(config["scenes"])
 _PLANS = {sid: plan_scene(config["scenes"], SEED, i) for i, sid in enumerate(SCENE_IDS)}
+# Pair-manifest variants that have a dataset rule (dataset.smk). full, no_real and no_synthetic
+# join when the reconstruction stack and real pseudo-pairs exist; until then they cannot be
+# requested (the {variant} wildcard only matches these).
+DATASET_VARIANTS = ["clean_buffers"]
 
 
 wildcard_constraints:
     scene=r"s\d{4}",
     traj=r"t\d+",
     light=r"L\d+",
+    variant="|".join(DATASET_VARIANTS),
 
 
 def scene_plan(scene_id):
@@ -104,10 +109,71 @@ def gt_root_of_inputs(wildcards, input):
 
 
 def report_inputs():
-    """What the run report summarises (grows as stages are added)."""
-    return [f"{OUT}/summary/ground_truth.json"]
+    """What the run report summarises: ground-truth counts and every variant's evaluation."""
+    return [f"{OUT}/summary/ground_truth.json", *refiner_outputs()]
 
 
 def results_root(wildcards, output):
     """results/ from results/report/index.html."""
     return str(Path(output[0]).parents[1])
+
+
+# ----------------------------------------------------------------------------- datasets, refiner
+def refiner_scene_plans():
+    """{scene_id: scene_plan} of the scenes that give refiner pairs (split train or test)."""
+    return {
+        sid: scene_plan(sid)
+        for sid in SCENE_IDS
+        if scene_plan(sid)["split"] in ("train", "test")
+    }
+
+
+def clean_buffers_inputs(wildcards):
+    """Proxy-from-GT-buffers manifests and Cycles target manifests of every clean_buffers pair."""
+    files = []
+    for sid, plan in refiner_scene_plans().items():
+        for traj in plan["trajectories"]:
+            for light in traj["target_lights"]:
+                files.append(f"{OUT}/proxy_gt/{sid}/{traj['id']}/{light}.json")
+                files.append(f"{OUT}/gt/{sid}/{traj['id']}/rgb/{light}.json")
+    return files
+
+
+def refiner_plans_json(wildcards):
+    return as_json(refiner_scene_plans())
+
+
+def refiner_model_config():
+    """The refiner config dict passed to the scripts (the workflow-only 'resources' key removed)."""
+    return {k: v for k, v in config.get("refiner", {}).items() if k != "resources"}
+
+
+def refiner_config_json(wildcards):
+    return as_json(refiner_model_config())
+
+
+def refiner_infer_json(wildcards):
+    """Inference overrides applied on top of the config stored with the trained model."""
+    return as_json({"infer": refiner_model_config().get("infer", {})})
+
+
+def refiner_resource(key, default):
+    return config.get("refiner", {}).get("resources", {}).get(key, default)
+
+
+def refiner_threads():
+    return refiner_resource("threads", 2)
+
+
+def refiner_pairs(wildcards):
+    return f"{OUT}/datasets/{wildcards.variant}/pairs.jsonl"
+
+
+def refiner_outputs():
+    """Evaluation outputs of every dataset variant that exists."""
+    return [f"{OUT}/eval/{v}/metrics.json" for v in DATASET_VARIANTS]
+
+
+def manifest_stem(wildcards, output):
+    """Frames folder beside a manifest: results/x/{light}.json -> results/x/{light}."""
+    return str(Path(output[0]).with_suffix(""))

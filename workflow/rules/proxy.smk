@@ -17,18 +17,20 @@ rule render_proxy_gt:
         "logs/render_proxy_gt/{scene}_{traj}_{light}.log",
     benchmark:
         "logs/benchmark/render_proxy_gt/{scene}_{traj}_{light}.tsv"
+    conda:
+        "../../envs/mitsuba.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=30,
     params:
-        buffers_dir=f"{OUT}/gt/{{scene}}/{{traj}}",
-        out_dir=f"{OUT}/proxy_gt/{{scene}}/{{traj}}/{{light}}",
+        script=script_path("render_proxy.py"),
+        out_dir=manifest_stem,
         spp=config["proxy"]["spp"],
         visibility=config["proxy"]["visibility"],
         rel_threshold=config["proxy"]["rel_threshold"],
     shell:
-        "{PY} {workflow.basedir}/scripts/render_proxy.py --buffers {params.buffers_dir} "
+        "python {params.script} --buffers {input.buffers} "
         "--scene {input.scene} --traj {wildcards.traj} --light {wildcards.light} --out {params.out_dir} "
         "--spp {params.spp} --visibility {params.visibility} --rel-threshold {params.rel_threshold} "
         "--threads {threads} > {log} 2>&1"

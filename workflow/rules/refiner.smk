@@ -5,41 +5,6 @@
 # cannot be requested, and new ones plug in by adding their dataset rule there.
 
 
-wildcard_constraints:
-    variant="|".join(DATASET_VARIANTS),
-
-
-def refiner_model_config():
-    """The refiner config dict passed to the scripts (the workflow-only 'resources' key removed)."""
-    return {k: v for k, v in config.get("refiner", {}).items() if k != "resources"}
-
-
-def refiner_config_json(wildcards):
-    return as_json(refiner_model_config())
-
-
-def refiner_infer_json(wildcards):
-    """Inference overrides applied on top of the config stored with the trained model."""
-    return as_json({"infer": refiner_model_config().get("infer", {})})
-
-
-def refiner_resource(key, default):
-    return config.get("refiner", {}).get("resources", {}).get(key, default)
-
-
-def refiner_threads():
-    return refiner_resource("threads", 2)
-
-
-def refiner_pairs(wildcards):
-    return f"{OUT}/datasets/{wildcards.variant}/pairs.jsonl"
-
-
-def refiner_outputs():
-    """Evaluation outputs of every dataset variant that exists."""
-    return [f"{OUT}/eval/{v}/metrics.json" for v in DATASET_VARIANTS]
-
-
 rule train_refiner:
     input:
         pairs=refiner_pairs,

@@ -1,0 +1,112 @@
+"""Lighting for the forward renderer: an environment map fixed in the world frame plus local lights.
+
+Everything is in the Blender world frame (Z up, metres) and additive: the rendered radiance is
+the sum of the environment term and one term per local light, so any combination renders.
+
+* Environment: lat-long linear HDR map in the convention of :mod:`lightcrafter.envmap`; global
+  ``strength`` (Blender Background strength) and ``exposure_ev`` scale it, global fitted
+  ``yaw_rad``/``pitch_rad`` resample it once; the per-frame Z rotation (scene ``rotation_z_rad`` +
+  trajectory ``light_rotation_z_rad``) is applied exactly by rotating directions at render time.
+* Point light: ``position_m``, radiant intensity ``intensity_w_sr`` (RGB, W/sr; irradiance
+  I cos / d^2).
+* Area light: one-sided rectangle, centre ``center_m``, emitting along unit ``normal``,
+  ``size_m`` = (width, height), constant radiance ``radiance`` (RGB, W/(m^2 sr)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lightcrafter import envmap
+from lightcrafter.io import DataError
+
+
+@dataclass(frozen=True)
+class PointLight:
+    position_m: tuple[float, float, float]
+    intensity_w_sr: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class AreaLight:
+    center_m: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    size_m: tuple[float, float]
+    radiance: tuple[float, float, float]
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(unit normal, tangent u scaled by width, tangent v scaled by height) in world metres."""
+        n = np.asarray(self.normal, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        helper = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        t = np.cross(helper, n)
+        t /= np.linalg.norm(t)
+        b = np.cross(n, t)
+        return n, t * self.size_m[0], b * self.size_m[1]
+
+
+@dataclass
+class Lighting:
+    """env: (H, W, 3) linear radiance (scaled, yaw/pitch applied) or None.
+    rotation_z_rad: base Z rotation; frame_rotation_z_rad: per-frame additions (radians)."""
+
+    env: np.ndarray | None = None
+    rotation_z_rad: float = 0.0
+    frame_rotation_z_rad: list[float] = field(default_factory=list)
+    point_lights: list[PointLight] = field(default_factory=list)
+    area_lights: list[AreaLight] = field(default_factory=list)
+
+    def env_rotation_rad(self, frame: int) -> float:
+        extra = self.frame_rotation_z_rad[frame] if frame < len(self.frame_rotation_z_rad) else 0.0
+        return float(self.rotation_z_rad + extra)
+
+    @property
+    def has_local_lights(self) -> bool:
+        return bool(self.point_lights or self.area_lights)
+
+
+def _vec(d: dict, key: str, n: int, where: str) -> tuple:
+    v = d.get(key)
+    if v is None or len(v) != n or not all(np.isfinite(float(x)) for x in v):
+        raise DataError(f"{where}: light needs finite {key!r} with {n} numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def local_lights_from_spec(entry: dict, where: str) -> tuple[list[PointLight], list[AreaLight]]:
+    points = [PointLight(_vec(p, "position_m", 3, where), _vec(p, "intensity_w_sr", 3, where))
+              for p in entry.get("point_lights", [])]
+    areas = [AreaLight(_vec(a, "center_m", 3, where), _vec(a, "normal", 3, where), _vec(a, "size_m", 2, where),
+                       _vec(a, "radiance", 3, where)) for a in entry.get("area_lights", [])]
+    for light in points + areas:
+        vals = light.intensity_w_sr if isinstance(light, PointLight) else light.radiance
+        if min(vals) < 0:
+            raise DataError(f"{where}: negative light emission {vals}")
+    return points, areas
+
+
+def lighting_from_spec(spec: dict, light_id: str, traj_id: str | None = None, *, exposure_ev: float = 0.0,
+                       yaw_rad: float = 0.0, pitch_rad: float = 0.0, where: str = "scene.json") -> Lighting:
+    """Build the lighting ``light_id`` of a ``lightcrafter.scene/1`` spec (per-frame rotation from
+    trajectory ``traj_id`` if given). The HDRI is resolved with ``lightcrafter.lights.resolve_hdri``."""
+    entries = {e["id"]: e for e in spec.get("lightings", [])}
+    if light_id not in entries:
+        raise DataError(f"{where}: no lighting {light_id!r}; available {sorted(entries)}")
+    entry = entries[light_id]
+    env = None
+    if entry.get("hdri"):
+        from lightcrafter.lights import resolve_hdri
+
+        env = envmap.load(resolve_hdri(entry["hdri"]))
+        env = envmap.rotate(env, yaw_rad, pitch_rad)
+        env = envmap.apply_exposure(env, exposure_ev, float(entry.get("strength", 1.0)))
+    frame_rot: list[float] = []
+    if traj_id is not None:
+        trajs = {t["id"]: t for t in spec.get("trajectories", [])}
+        if traj_id not in trajs:
+            raise DataError(f"{where}: no trajectory {traj_id!r}; available {sorted(trajs)}")
+        frame_rot = [float(f.get("light_rotation_z_rad", 0.0)) for f in trajs[traj_id]["frames"]]
+    points, areas = local_lights_from_spec(entry, where)
+    return Lighting(env=env, rotation_z_rad=float(entry.get("rotation_z_rad", 0.0)),
+                    frame_rotation_z_rad=frame_rot, point_lights=points, area_lights=areas)

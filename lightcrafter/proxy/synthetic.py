@@ -1,0 +1,89 @@
+"""Analytic buffers of spheres on a ground plane (exact ray casting in numpy), for tests/benchmarks.
+
+Same conventions as the pipeline: OpenCV camera, K with pixel centres at integers, z-depth in
+metres, world-space normals, ground plane z = 0 (Blender world, Z up).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lightcrafter.io import Buffers
+from lightcrafter.proxy.geometry import camera_rays
+
+
+@dataclass(frozen=True)
+class Sphere:
+    center_m: tuple[float, float, float]
+    radius_m: float
+    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    roughness: float = 0.5
+    metallic: float = 0.0
+
+
+@dataclass(frozen=True)
+class Ground:
+    albedo: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    roughness: float = 0.8
+    metallic: float = 0.0
+    half_size_m: float = 6.0
+
+
+def intrinsics(width: int, height: int, fov_x_rad: float) -> np.ndarray:
+    fx = (width / 2.0) / np.tan(fov_x_rad / 2.0)
+    return np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fx, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def look_at(eye, target) -> np.ndarray:
+    """OpenCV camera-to-world looking from ``eye`` at ``target`` with world +Z up."""
+    eye = np.asarray(eye, float)
+    f = np.asarray(target, float) - eye
+    f /= np.linalg.norm(f)
+    up = np.array([0.0, 0.0, 1.0]) if abs(f[2]) < 0.999 else np.array([0.0, 1.0, 0.0])
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = r, np.cross(f, r), f, eye
+    return c2w
+
+
+def raycast_buffers(K: np.ndarray, c2w: np.ndarray, width: int, height: int, spheres=(),
+                    ground: Ground | None = Ground()) -> Buffers:
+    rays_c = camera_rays(K, height, width)  # z = 1
+    R, o = c2w[:3, :3], c2w[:3, 3]
+    d = rays_c @ R.T  # world direction with camera-z component 1 => t is z-depth
+    best = np.full((height, width), np.inf)
+    nrm = np.zeros((height, width, 3))
+    alb = np.zeros((height, width, 3))
+    rough = np.zeros((height, width))
+    metal = np.zeros((height, width))
+    if ground is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -o[2] / d[..., 2]
+        p = o + d * t[..., None]
+        ok = (t > 0) & (np.abs(p[..., 0]) <= ground.half_size_m) & (np.abs(p[..., 1]) <= ground.half_size_m)
+        best = np.where(ok, t, best)
+        nrm[ok] = (0, 0, 1)
+        alb[ok] = ground.albedo
+        rough[ok], metal[ok] = ground.roughness, ground.metallic
+    for s in spheres:
+        c = np.asarray(s.center_m, float)
+        oc = o - c
+        a = np.sum(d * d, -1)
+        b = 2 * np.sum(d * oc, -1)
+        cc = np.dot(oc, oc) - s.radius_m**2
+        disc = b * b - 4 * a * cc
+        with np.errstate(invalid="ignore"):
+            t = (-b - np.sqrt(disc)) / (2 * a)
+        ok = (disc >= 0) & (t > 0) & (t < best)
+        best = np.where(ok, t, best)
+        p = o + d * t[..., None]
+        nrm[ok] = ((p - c) / s.radius_m)[ok]
+        alb[ok] = s.albedo
+        rough[ok], metal[ok] = s.roughness, s.metallic
+    mask = np.isfinite(best)
+    return Buffers(depth=best.astype(np.float32), normal=nrm.astype(np.float32), albedo=alb.astype(np.float32),
+                   roughness=rough.astype(np.float32), metallic=metal.astype(np.float32),
+                   mask=mask.astype(np.float32))

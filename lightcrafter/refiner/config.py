@@ -1,0 +1,191 @@
+"""Refiner configuration: one plain dict, two presets (``tiny`` and ``paper``).
+
+Every key is documented in :data:`KEY_DOCS`. A run's config is ``resolve_config(overrides)``:
+the preset named by ``overrides["preset"]`` (default ``tiny``) deep-merged with the overrides.
+Unknown top-level keys are an error so that typos do not silently fall back to defaults.
+"""
+
+from __future__ import annotations
+
+import copy
+
+# CogVideoX-5B(-I2V) scheduler_config.json, as published with the checkpoint. The diffusers class
+# defaults differ (epsilon, leading, snr_shift 3.0), so the parameterisation is always set from here
+# (or from the local checkpoint's own file when a model path is configured).
+COGVIDEOX_5B_SCHEDULER: dict = {
+    "num_train_timesteps": 1000,
+    "beta_start": 0.00085,
+    "beta_end": 0.012,
+    "beta_schedule": "scaled_linear",
+    "clip_sample": False,
+    "clip_sample_range": 1.0,
+    "sample_max_value": 1.0,
+    "set_alpha_to_one": True,
+    "steps_offset": 0,
+    "prediction_type": "v_prediction",
+    "rescale_betas_zero_snr": True,
+    "snr_shift_scale": 1.0,
+    "timestep_spacing": "trailing",
+    "trained_betas": None,
+}
+
+TINY_TRANSFORMER: dict = {
+    # modelled on diffusers' own CPU test config (tests/models/transformers/
+    # test_models_transformer_cogvideox.py), a little wider so it can learn something.
+    # inner dim 4 * 64 = 256 >= the 2x2-patch output size 4 * 64 latent channels, so the network
+    # can represent "copy the proxy" (a narrower one bottlenecks every token).
+    "num_attention_heads": 4,
+    "attention_head_dim": 64,
+    "time_embed_dim": 64,
+    "text_embed_dim": 16,
+    "num_layers": 2,
+    "sample_width": 12,  # latent width the sincos embedding is precomputed for (recomputed if different)
+    "sample_height": 8,
+    "sample_frames": 9,  # pixel frames
+    "patch_size": 2,
+    "temporal_compression_ratio": 4,
+    "max_text_seq_length": 8,
+    "use_rotary_positional_embeddings": False,
+    "use_learned_positional_embeddings": False,
+}
+
+_BASE: dict = {
+    "preset": "tiny",
+    "seed": 0,
+    # --- model
+    "model": {
+        "kind": "tiny",  # tiny: random-init transformer + DCT patch autoencoder; paper: local CogVideoX-5B-I2V
+        "model_path": None,  # local diffusers folder of CogVideoX-5B-I2V (paper)
+        "dtype": "float32",  # float32 | bfloat16
+        "gradient_checkpointing": False,
+        "vae_slicing": False,
+        "vae_tiling": False,
+        "transformer": copy.deepcopy(TINY_TRANSFORMER),
+        "ae_coeffs": [40, 12, 12],  # tiny autoencoder: DCT coefficients kept per 4x8x8 block for
+        # (luma, chroma1, chroma2); latent channels = their sum
+        "empty_prompt_cache": None,  # path of the cached empty-prompt embedding (.pt); paper only
+    },
+    # --- diffusion parameterisation (see COGVIDEOX_5B_SCHEDULER)
+    "scheduler": copy.deepcopy(COGVIDEOX_5B_SCHEDULER),
+    # --- training
+    "train": {
+        "lr": 1e-3,  # tiny default (trains from scratch); the paper fine-tunes with 1e-5 (preset "paper")
+        "weight_decay": 1e-2,
+        "adam_betas": [0.9, 0.999],
+        "batch_size": 1,
+        "grad_accum": 4,
+        "max_steps": 400,  # optimizer steps
+        "warmup_steps": 20,
+        "max_grad_norm": 1.0,
+        "proxy_dropout": 0.1,  # probability of zeroing the proxy latent (enables CFG on the proxy)
+        "cond_noise_log_sigma_mean": -3.0,  # log sigma ~ N(mean, std) on proxy pixels in [-1, 1]
+        "cond_noise_log_sigma_std": 0.5,
+        "latent_window": 3,  # latent frames per training crop (paper: 13 = 49 pixel frames)
+        "checkpoint_every": 50,  # optimizer steps
+        "log_every": 1,
+    },
+    # --- inference
+    "infer": {
+        "num_steps": 50,
+        "guidance_scale": 6.0,
+        "sampler": "ddim",  # ddim | dpm (CogVideoXDPMScheduler: stochastic, carries previous x0)
+        "window": 3,  # latent frames per tile (paper: 13)
+        "overlap": 1,  # latent frames shared by neighbouring tiles (paper: 3)
+        "min_tent_weight": 0.1,  # tent weight at a tile's outermost frame (> 0)
+        "pad_frames": "error",  # error | repeat_last: what to do when the frame count is not 4k+1
+    },
+    "data": {
+        "exposure_ev": 0.0,  # display transform exposure (io.linear_to_display)
+        "max_train_pairs": None,
+        "cache_pixels": True,  # keep decoded proxy/target frames in memory (exact; off at paper scale)
+    },
+}
+
+PRESETS: dict[str, dict] = {
+    "tiny": {},
+    "paper": {
+        "model": {
+            "kind": "paper",
+            "dtype": "bfloat16",
+            "gradient_checkpointing": True,
+            "vae_slicing": True,
+            "vae_tiling": True,
+            "transformer": None,  # read from the checkpoint
+        },
+        "train": {"lr": 1e-5, "warmup_steps": 0, "latent_window": 13, "max_steps": 10000, "checkpoint_every": 500},
+        "infer": {"window": 13, "overlap": 3, "sampler": "dpm"},  # paper: "full DPM solver", 50 steps
+        "data": {"cache_pixels": False},
+    },
+}
+
+KEY_DOCS: dict[str, str] = {
+    "preset": "tiny | paper: base values the rest of the dict overrides",
+    "seed": "integer seed of every random draw in training and inference",
+    "model.kind": "tiny (random-init transformer, DCT patch autoencoder, CPU) | paper (CogVideoX-5B-I2V from model_path)",
+    "model.model_path": "local diffusers folder of CogVideoX-5B-I2V; required for kind=paper, never downloaded",
+    "model.dtype": "float32 | bfloat16 (paper)",
+    "model.gradient_checkpointing": "recompute transformer activations in backward (paper: true)",
+    "model.vae_slicing": "VAE encodes/decodes the batch one sample at a time (paper)",
+    "model.vae_tiling": "VAE works in spatial tiles (paper)",
+    "model.transformer": "CogVideoXTransformer3DModel kwargs for kind=tiny (in/out channels are derived)",
+    "model.ae_coeffs": "tiny autoencoder: DCT coefficients per 4x8x8 block for [luma, chroma1, chroma2] "
+    "(latent channels = sum; [256, 256, 256] = lossless); the paper VAE has 16 latent channels",
+    "model.empty_prompt_cache": "file caching the T5 embedding of the empty prompt (paper)",
+    "scheduler": "diffusers CogVideoX scheduler kwargs (defaults: CogVideoX-5B's scheduler_config.json)",
+    "train.lr": "AdamW learning rate (paper 1e-5; tiny default 1e-3 because it trains from scratch)",
+    "train.weight_decay": "AdamW weight decay",
+    "train.adam_betas": "AdamW betas",
+    "train.batch_size": "pairs per micro-batch (1)",
+    "train.grad_accum": "micro-batches per optimizer step (4)",
+    "train.max_steps": "optimizer steps to train",
+    "train.warmup_steps": "linear LR warm-up, optimizer steps",
+    "train.max_grad_norm": "gradient clipping norm",
+    "train.proxy_dropout": "probability of zeroing the proxy latent in a training sample",
+    "train.cond_noise_log_sigma_mean": "mean of log sigma of pixel-space proxy noise (images in [-1, 1])",
+    "train.cond_noise_log_sigma_std": "std of log sigma of pixel-space proxy noise",
+    "train.latent_window": "latent frames per training crop (cropped from the globally encoded clip)",
+    "train.checkpoint_every": "optimizer steps between checkpoints",
+    "train.log_every": "optimizer steps between log lines",
+    "infer.num_steps": "denoising steps (50)",
+    "infer.guidance_scale": "classifier-free guidance on the proxy latent (6.0); 1 disables the unconditional pass",
+    "infer.sampler": "ddim (CogVideoXDDIMScheduler, deterministic) | dpm (CogVideoXDPMScheduler, stochastic)",
+    "infer.window": "latent frames per temporal tile (paper 13 = 49 pixel frames)",
+    "infer.overlap": "latent frames shared by neighbouring tiles (paper 3 = 12 pixel frames)",
+    "infer.min_tent_weight": "tent weight at a tile's edge frame, > 0 so every frame is defined",
+    "infer.pad_frames": "error | repeat_last: frame counts that are not 4k+1 raise, or are padded then cropped",
+    "data.exposure_ev": "exposure (EV) of the display transform applied to proxy and target alike",
+    "data.max_train_pairs": "use at most this many training pairs (null = all)",
+    "data.cache_pixels": "keep decoded frames of training pairs in memory (exact); false at paper scale",
+}
+
+
+def _merge(base: dict, over: dict, path: str = "") -> dict:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if k not in base:
+            raise KeyError(f"unknown refiner config key {path + k!r}; known: {sorted(base)}")
+        if isinstance(v, dict) and isinstance(out.get(k), dict) and k not in ("transformer", "scheduler"):
+            out[k] = _merge(out[k], v, path + k + ".")
+        elif isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = {**out[k], **copy.deepcopy(v)}
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def resolve_config(overrides: dict | None = None) -> dict:
+    """Defaults <- preset <- overrides (deep merge). Raises KeyError on unknown top-level keys."""
+    overrides = dict(overrides or {})
+    preset = overrides.get("preset", "tiny")
+    if preset not in PRESETS:
+        raise KeyError(f"unknown refiner preset {preset!r}; choose one of {sorted(PRESETS)}")
+    cfg = _merge(_BASE, PRESETS[preset])
+    cfg = _merge(cfg, overrides)
+    inf = cfg["infer"]
+    if not (0 <= inf["overlap"] < inf["window"]):
+        raise ValueError(f"infer.overlap={inf['overlap']} must be in [0, window={inf['window']})")
+    if not inf["min_tent_weight"] > 0:
+        raise ValueError("infer.min_tent_weight must be > 0 (zero edge weights leave frames undefined)")
+    if inf["pad_frames"] not in ("error", "repeat_last"):
+        raise ValueError(f"infer.pad_frames={inf['pad_frames']!r}: use 'error' or 'repeat_last'")
+    return cfg

@@ -1,0 +1,160 @@
+"""The refiner network: CogVideoX transformer over [noisy latent || proxy latent] (channel concat).
+
+``in_channels = 2 * latent_channels`` (no zero-padding in time: proxy and target are length-aligned),
+``out_channels = latent_channels``. The text branch is disabled by one fixed empty-prompt embedding
+of shape (1, max_text_seq_length, text_embed_dim), computed once and kept as a buffer:
+
+* ``tiny``: zeros (there is no text encoder; any fixed tensor is equivalent to an empty prompt);
+* ``paper``: the T5 encoding of "" padded to 226 tokens (the model's text length), read from
+  ``model.empty_prompt_cache`` or computed once from ``{model_path}/text_encoder`` and cached there.
+
+The model output is the scheduler's ``v`` (v-prediction); the paper calls it the noise prediction.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from .autoencoder import CogVideoXVAE, DCTPatchAutoencoder
+
+
+class MissingWeightsError(FileNotFoundError):
+    """The paper model's local weights are not configured or absent."""
+
+
+def _dtype(name: str) -> torch.dtype:
+    return {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[name]
+
+
+def require_model_path(cfg: dict) -> Path:
+    path = cfg["model"].get("model_path")
+    if not path or not (Path(path) / "transformer").is_dir():
+        raise MissingWeightsError(
+            f"refiner model.kind=paper needs a local CogVideoX-5B-I2V diffusers folder in model.model_path "
+            f"(got {path!r}); nothing is downloaded. Use preset 'tiny' on machines without the weights."
+        )
+    return Path(path)
+
+
+def empty_prompt_embedding(cfg: dict, max_len: int, dim: int) -> torch.Tensor:
+    """(1, max_len, dim) fixed text embedding of the empty prompt (see module docstring)."""
+    if cfg["model"]["kind"] == "tiny":
+        return torch.zeros(1, max_len, dim)
+    cache = cfg["model"].get("empty_prompt_cache")
+    if cache and Path(cache).is_file():
+        emb = torch.load(cache, map_location="cpu")
+    else:
+        try:
+            from transformers import AutoTokenizer, T5EncoderModel
+        except ImportError as exc:
+            raise MissingWeightsError(
+                "the empty-prompt embedding needs the 'transformers' package once (T5 from model_path), "
+                "or a precomputed file in model.empty_prompt_cache"
+            ) from exc
+
+        root = require_model_path(cfg)
+        tok = AutoTokenizer.from_pretrained(root / "tokenizer")
+        enc = T5EncoderModel.from_pretrained(root / "text_encoder", torch_dtype=torch.float32)
+        ids = tok([""], padding="max_length", max_length=max_len, truncation=True, return_tensors="pt")
+        with torch.no_grad():
+            emb = enc(ids.input_ids)[0]
+        if cache:
+            Path(cache).parent.mkdir(parents=True, exist_ok=True)
+            torch.save(emb, cache)
+    if emb.shape[1] < max_len:  # pad to the model's text length
+        emb = torch.cat([emb, emb.new_zeros(1, max_len - emb.shape[1], emb.shape[2])], dim=1)
+    return emb[:, :max_len]
+
+
+def grid_crop_region(grid_hw: tuple[int, int], base_w: int, base_h: int):
+    """Centred region of the base (sample) token grid that a (h, w) token grid is resized into,
+    aspect preserved -- the crop CogVideoX 1.0 uses for its 3-D RoPE. Returns ((top, left), (bottom, right))."""
+    h, w = grid_hw
+    if h / w > base_h / base_w:
+        rh, rw = base_h, int(round(base_h / h * w))
+    else:
+        rw, rh = base_w, int(round(base_w / w * h))
+    top, left = int(round((base_h - rh) / 2.0)), int(round((base_w - rw) / 2.0))
+    return (top, left), (top + rh, left + rw)
+
+
+def build_transformer(cfg: dict, latent_channels: int):
+    from diffusers import CogVideoXTransformer3DModel
+
+    m = cfg["model"]
+    if m["kind"] == "tiny":
+        kwargs = dict(m["transformer"])
+        kwargs.update(in_channels=2 * latent_channels, out_channels=latent_channels)
+        net = CogVideoXTransformer3DModel(**kwargs)
+    elif m["kind"] == "paper":
+        net = CogVideoXTransformer3DModel.from_pretrained(
+            require_model_path(cfg), subfolder="transformer", torch_dtype=_dtype(m["dtype"])
+        )
+        if net.config.in_channels != 2 * latent_channels:
+            raise ValueError(f"transformer in_channels={net.config.in_channels}, expected {2 * latent_channels}")
+    else:
+        raise ValueError(f"model.kind={m['kind']!r}: use 'tiny' or 'paper'")
+    if m.get("gradient_checkpointing"):
+        net.enable_gradient_checkpointing()
+    return net
+
+
+def build_autoencoder(cfg: dict):
+    m = cfg["model"]
+    if m["kind"] == "tiny":
+        return DCTPatchAutoencoder(m["ae_coeffs"])
+    return CogVideoXVAE(str(require_model_path(cfg)), _dtype(m["dtype"]), m["vae_slicing"], m["vae_tiling"])
+
+
+class Refiner(nn.Module):
+    """Frozen autoencoder + trainable transformer + cached empty-prompt embedding."""
+
+    def __init__(self, cfg: dict):
+        super().__init__()
+        self.cfg = cfg
+        self.ae = build_autoencoder(cfg)
+        self.ae.requires_grad_(False)
+        self.transformer = build_transformer(cfg, self.ae.latent_channels)
+        tc = self.transformer.config
+        self.register_buffer(
+            "prompt_embeds", empty_prompt_embedding(cfg, tc.max_text_seq_length, tc.text_embed_dim), persistent=False
+        )
+
+    @property
+    def latent_channels(self) -> int:
+        return self.ae.latent_channels
+
+    def _rotary(self, frames: int, h: int, w: int, device):
+        tc = self.transformer.config
+        if not tc.use_rotary_positional_embeddings:
+            return None
+        from diffusers.models.embeddings import get_3d_rotary_pos_embed
+
+        if tc.patch_size_t is not None:
+            raise NotImplementedError("CogVideoX 1.5 (patch_size_t) RoPE layout is not supported; use CogVideoX-5B-I2V")
+        p = tc.patch_size
+        gh, gw = h // p, w // p
+        crops = grid_crop_region((gh, gw), tc.sample_width // p, tc.sample_height // p)
+        return get_3d_rotary_pos_embed(
+            embed_dim=tc.attention_head_dim, crops_coords=crops, grid_size=(gh, gw), temporal_size=frames, device=device
+        )
+
+    def forward(self, noisy: torch.Tensor, proxy: torch.Tensor, timestep: torch.Tensor) -> torch.Tensor:
+        """noisy, proxy: (B, F, C, h, w) latents; timestep: (B,) ints -> v prediction (B, F, C, h, w)."""
+        if noisy.shape != proxy.shape:
+            raise ValueError(f"noisy {tuple(noisy.shape)} and proxy {tuple(proxy.shape)} latents must match")
+        b, f, _, h, w = noisy.shape
+        dtype = self.transformer.dtype
+        x = torch.cat([noisy, proxy], dim=2).to(dtype)
+        emb = self.prompt_embeds.to(dtype).expand(b, -1, -1)
+        out = self.transformer(
+            hidden_states=x,
+            encoder_hidden_states=emb,
+            timestep=timestep,
+            image_rotary_emb=self._rotary(f, h, w, x.device),
+            return_dict=False,
+        )[0]
+        return out.float()

@@ -1,0 +1,45 @@
+"""CogVideoX noise-schedule parameterisation, set explicitly (never the diffusers class defaults).
+
+The class defaults of ``CogVideoXDDIMScheduler``/``CogVideoXDPMScheduler`` (epsilon prediction,
+``leading`` spacing, ``snr_shift_scale`` 3.0) differ from the CogVideoX-5B checkpoint's
+``scheduler_config.json`` (v-prediction, ``trailing``, zero terminal SNR, shift 1.0). With zero
+terminal SNR, alpha_bar(t=999) = 0: an epsilon objective would divide by zero there, while the
+v target ``sqrt(ab) * eps - sqrt(1 - ab) * x0`` stays finite (= -x0).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .config import COGVIDEOX_5B_SCHEDULER
+
+
+def scheduler_config(cfg: dict) -> dict:
+    """The scheduler kwargs of a run: the local checkpoint's file if present, else ``cfg['scheduler']``."""
+    path = cfg["model"].get("model_path")
+    if path:
+        f = Path(path) / "scheduler" / "scheduler_config.json"
+        if f.is_file():
+            data = json.loads(f.read_text())
+            return {k: v for k, v in data.items() if not k.startswith("_") and k in COGVIDEOX_5B_SCHEDULER}
+    return dict(cfg.get("scheduler") or COGVIDEOX_5B_SCHEDULER)
+
+
+def build_scheduler(cfg: dict, sampler: str | None = None):
+    """A fresh CogVideoX scheduler (``ddim`` or ``dpm``) with the run's parameterisation.
+
+    ``timestep_spacing`` is forced to ``trailing`` at inference as in the paper, whatever the file says.
+    """
+    from diffusers import CogVideoXDDIMScheduler, CogVideoXDPMScheduler
+
+    kwargs = scheduler_config(cfg)
+    kwargs["timestep_spacing"] = "trailing"
+    sampler = sampler or cfg["infer"]["sampler"]
+    cls = {"ddim": CogVideoXDDIMScheduler, "dpm": CogVideoXDPMScheduler}.get(sampler)
+    if cls is None:
+        raise ValueError(f"infer.sampler={sampler!r}: use 'ddim' or 'dpm'")
+    sched = cls(**kwargs)
+    if sched.config.prediction_type != "v_prediction":
+        raise ValueError(f"scheduler prediction_type={sched.config.prediction_type!r}; the refiner is v-prediction")
+    return sched

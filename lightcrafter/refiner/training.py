@@ -1,0 +1,223 @@
+"""Refiner training loop: v-prediction loss, AdamW, gradient accumulation (accelerate),
+bit-for-bit resumable checkpoints, tqdm progress bar and a plain-text log.
+
+Randomness: every draw of a training step (pair index, latent crop, conditioning sigma and noise,
+dropout coin, timestep, diffusion noise) comes from ONE ``torch.Generator`` seeded by ``cfg.seed``;
+its state, the global torch/numpy/python RNG states, the model, the optimizer and the LR schedule
+are saved in each checkpoint, at optimizer-step boundaries, so ``N straight`` and
+``N/2 + resume + N/2`` give identical loss curves on the CPU.
+
+Windows: each sample is a ``train.latent_window``-frame crop at a random offset of the globally
+encoded clip, so (like tiled inference) most windows start with a 4-frame latent rather than the
+causal 1-frame first latent.
+
+Devices: on the CPU (tiny) everything is float32; with a GPU and ``model.dtype: bfloat16`` accelerate
+runs bf16 mixed precision. All random draws stay on the CPU generator, then move to the device.
+
+Latent caching: target latents are cached in memory (exact: the encoder is deterministic); proxy
+latents are recomputed each step because the conditioning noise is added in pixel space.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import random
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lightcrafter.io import atomic_path
+
+from .conditioning import drop_proxy_latent, noisy_proxy, sample_log_sigma
+from .model import Refiner
+from .schedule import build_scheduler
+
+CKPT_DIR = "checkpoints"
+LATEST = "latest.txt"
+
+
+def _logger(out_dir: Path) -> logging.Logger:
+    log = logging.getLogger(f"lightcrafter.refiner.train.{out_dir}")
+    log.setLevel(logging.INFO)
+    if not log.handlers:
+        h = logging.FileHandler(out_dir / "train.log")
+        h.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
+        log.addHandler(h)
+    return log
+
+
+def save_checkpoint(path: Path, state: dict) -> None:
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def latest_checkpoint(out_dir: Path) -> Path | None:
+    f = out_dir / CKPT_DIR / LATEST
+    if not f.is_file():
+        return None
+    p = out_dir / CKPT_DIR / f.read_text().strip()
+    return p if p.is_file() else None
+
+
+def training_loss(model: Refiner, sched, target_lat: torch.Tensor, proxy_lat: torch.Tensor, t: torch.Tensor,
+                  noise: torch.Tensor) -> torch.Tensor:
+    """MSE between the model's v and the scheduler's v target at timesteps t (B,)."""
+    noisy = sched.add_noise(target_lat, noise, t)
+    v_target = sched.get_velocity(target_lat, noise, t)
+    v_pred = model(noisy, proxy_lat, t)
+    return torch.mean((v_pred - v_target) ** 2)
+
+
+class TargetLatentCache:
+    """Exact in-memory cache of full-clip target latents, keyed by pair id."""
+
+    def __init__(self, ae):
+        self.ae, self.store = ae, {}
+
+    def get(self, pair_id: str, video: torch.Tensor) -> torch.Tensor:
+        if pair_id not in self.store:
+            self.store[pair_id] = self.ae.encode(video[None])
+        return self.store[pair_id]
+
+
+def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True) -> dict:
+    """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float}.
+
+    ``dataset[i]`` -> {"pair_id", "proxy", "target"} with (3, N, H, W) tensors in [-1, 1].
+    ``stop_after`` stops after that many optimizer steps of THIS call (simulates a killed job;
+    a checkpoint is written first). The final weights go to ``out_dir/model.pt``.
+    """
+    from accelerate import Accelerator
+
+    out_dir = Path(out_dir)
+    (out_dir / CKPT_DIR).mkdir(parents=True, exist_ok=True)
+    log = _logger(out_dir)
+    tr = cfg["train"]
+    if tr["batch_size"] != 1:
+        raise ValueError("train.batch_size must be 1 (clips of different lengths)")
+    if len(dataset) == 0:
+        raise ValueError("training set is empty (no pairs with split == 'train')")
+
+    torch.manual_seed(cfg["seed"])
+    model = Refiner(cfg)
+    if cfg["model"]["kind"] == "tiny":
+        n_fit = min(len(dataset), 8)
+        model.ae.fit_normalisation(dataset[i]["target"][None] for i in range(n_fit))
+    params = [p for p in model.transformer.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=tr["lr"], betas=tuple(tr["adam_betas"]), weight_decay=tr["weight_decay"])
+    warm = max(int(tr["warmup_steps"]), 0)
+    lr_sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: min(1.0, (s + 1) / warm) if warm else 1.0)
+    gen = torch.Generator().manual_seed(cfg["seed"])
+    step, losses = 0, []
+
+    ckpt = latest_checkpoint(out_dir)
+    if ckpt is not None:
+        st = torch.load(ckpt, map_location="cpu", weights_only=False)
+        model.transformer.load_state_dict(st["transformer"])
+        model.ae.load_state_dict(st["ae"])
+        opt.load_state_dict(st["optimizer"])
+        lr_sched.load_state_dict(st["lr_scheduler"])
+        gen.set_state(st["generator"])
+        torch.set_rng_state(st["torch_rng"])
+        np.random.set_state(st["numpy_rng"])
+        random.setstate(st["python_rng"])
+        step, losses = st["step"], list(st["losses"])
+        log.info("resumed from %s at step %d", ckpt.name, step)
+
+    use_gpu = torch.cuda.is_available() and cfg["model"]["kind"] == "paper"
+    acc = Accelerator(gradient_accumulation_steps=tr["grad_accum"], cpu=not use_gpu,
+                      mixed_precision="bf16" if use_gpu and cfg["model"]["dtype"] == "bfloat16" else "no")
+    dev = acc.device
+    model.to(dev)
+    model.transformer, opt, lr_sched = acc.prepare(model.transformer, opt, lr_sched)
+    acc.step = step * tr["grad_accum"]  # accumulation phase restarts at an optimizer-step boundary
+    sched = build_scheduler(cfg, "ddim")
+    cache = TargetLatentCache(model.ae)
+    model.transformer.train()
+
+    def checkpoint():
+        state = {
+            "transformer": acc.unwrap_model(model.transformer).state_dict(),
+            "ae": model.ae.state_dict(),
+            "optimizer": opt.state_dict(),
+            "lr_scheduler": lr_sched.state_dict(),
+            "generator": gen.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "numpy_rng": np.random.get_state(),
+            "python_rng": random.getstate(),
+            "step": step,
+            "losses": losses,
+            "config": cfg,
+        }
+        name = f"step_{step:07d}.pt"
+        save_checkpoint(out_dir / CKPT_DIR / name, state)
+        (out_dir / CKPT_DIR / LATEST).write_text(name + "\n")
+        for old in sorted((out_dir / CKPT_DIR).glob("step_*.pt"))[:-2]:  # keep the last two
+            old.unlink()
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=tr["max_steps"], initial=step, desc="refiner", disable=not progress, file=sys.stderr)
+    done_here, t_start = 0, time.perf_counter()
+    window = int(tr["latent_window"])
+    while step < tr["max_steps"] and (stop_after is None or done_here < stop_after):
+        micro = []
+        for _ in range(tr["grad_accum"]):
+            with acc.accumulate(model.transformer):
+                item = dataset[int(torch.randint(len(dataset), (1,), generator=gen))]
+                tgt = cache.get(item["pair_id"], item["target"].to(dev))
+                f = tgt.shape[1]
+                s = int(torch.randint(max(f - window, 0) + 1, (1,), generator=gen))
+                e = min(f, s + window)
+                log_sigma = sample_log_sigma(gen, tr["cond_noise_log_sigma_mean"], tr["cond_noise_log_sigma_std"])
+                zp = model.ae.encode(noisy_proxy(item["proxy"][None], log_sigma, gen).to(dev))[:, s:e].float()
+                zp, _ = drop_proxy_latent(zp, tr["proxy_dropout"], gen)
+                t = torch.randint(sched.config.num_train_timesteps, (1,), generator=gen)
+                noise = torch.randn(zp.shape, generator=gen).to(dev)
+                loss = training_loss(model, sched, tgt[:, s:e].float(), zp, t.to(dev), noise)
+                acc.backward(loss)
+                if acc.sync_gradients:
+                    acc.clip_grad_norm_(params, tr["max_grad_norm"])
+                opt.step()
+                lr_sched.step()
+                opt.zero_grad()
+                micro.append(float(loss.detach()))
+        step += 1
+        done_here += 1
+        losses.append(sum(micro) / len(micro))
+        bar.update(1)
+        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+        if step % tr["log_every"] == 0:
+            log.info("step %d loss %.6f lr %.3g", step, losses[-1], lr_sched.get_last_lr()[0])
+        if step % tr["checkpoint_every"] == 0 or step == tr["max_steps"] or done_here == stop_after:
+            checkpoint()
+    bar.close()
+    sec = (time.perf_counter() - t_start) / max(done_here, 1)
+    if step >= tr["max_steps"]:
+        save_model(out_dir / "model.pt", acc.unwrap_model(model.transformer), model.ae, cfg)
+        with atomic_path(out_dir / "loss_curve.json") as tmp:
+            tmp.write_text(json.dumps({"loss_per_optimizer_step": losses, "seconds_per_optimizer_step": sec}))
+    log.info("stopped at step %d (%.3f s/optimizer step this run)", step, sec)
+    return {"losses": losses, "step": step, "seconds_per_step": sec}
+
+
+def save_model(path: Path, transformer, ae, cfg: dict) -> None:
+    save_checkpoint(path, {"transformer": transformer.state_dict(), "ae": ae.state_dict(), "config": cfg})
+
+
+def load_model(path, cfg_overrides: dict | None = None) -> Refiner:
+    """Rebuild a trained :class:`Refiner` from ``model.pt`` (its stored config, optionally overridden)."""
+    from .config import _merge, resolve_config
+
+    st = torch.load(path, map_location="cpu", weights_only=False)
+    cfg = st["config"]
+    if cfg_overrides:
+        cfg = resolve_config(_merge(cfg, cfg_overrides))
+    model = Refiner(cfg)
+    model.transformer.load_state_dict(st["transformer"])
+    model.ae.load_state_dict(st["ae"])
+    return model.eval()

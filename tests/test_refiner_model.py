@@ -1,0 +1,72 @@
+"""Tiny refiner: shapes, channel concat, fixed empty-prompt embedding, missing weights message."""
+
+import pytest
+import torch
+
+from lightcrafter.refiner import MissingWeightsError, Refiner, resolve_config
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.manual_seed(0)
+    return Refiner(resolve_config({"model": {"ae_coeffs": [8, 4, 4]}}))
+
+
+def test_tiny_forward_shapes(model):
+    c = model.latent_channels
+    assert c == 16
+    assert model.transformer.config.in_channels == 2 * c  # noisy || proxy, channel concat
+    assert model.transformer.config.out_channels == c
+    for frames in (1, 3, 5):
+        z = torch.randn(2, frames, c, 4, 6)
+        out = model(z, torch.randn_like(z), torch.tensor([0, 999]))
+        assert out.shape == z.shape
+        assert torch.isfinite(out).all()
+
+
+def test_proxy_and_noisy_must_align_in_time(model):
+    c = model.latent_channels
+    with pytest.raises(ValueError, match="must match"):
+        model(torch.randn(1, 3, c, 4, 6), torch.randn(1, 2, c, 4, 6), torch.tensor([10]))
+
+
+def test_empty_prompt_embedding_is_fixed_and_padded(model):
+    tc = model.transformer.config
+    assert model.prompt_embeds.shape == (1, tc.max_text_seq_length, tc.text_embed_dim)
+    other = Refiner(resolve_config({"model": {"ae_coeffs": [8, 4, 4]}}))
+    assert torch.equal(other.prompt_embeds, model.prompt_embeds)
+
+
+def test_output_depends_on_proxy(model):
+    c = model.latent_channels
+    z = torch.randn(1, 3, c, 4, 6)
+    t = torch.tensor([500])
+    assert not torch.allclose(model(z, torch.zeros_like(z), t), model(z, torch.randn_like(z), t))
+
+
+def test_paper_without_weights_raises_clear_message(tmp_path):
+    cfg = resolve_config({"preset": "paper", "model": {"model_path": str(tmp_path / "nope")}})
+    with pytest.raises(MissingWeightsError, match="local CogVideoX-5B-I2V"):
+        Refiner(cfg)
+
+
+def test_unknown_config_key_rejected():
+    with pytest.raises(KeyError):
+        resolve_config({"trian": {}})
+    with pytest.raises(ValueError):
+        resolve_config({"infer": {"min_tent_weight": 0.0}})
+
+
+def test_rotary_embedding_path_runs():
+    """The paper model uses 3-D RoPE; exercise that path with tiny dims (head_dim divisible by 16)."""
+    from lightcrafter.refiner.model import grid_crop_region
+
+    cfg = resolve_config({"model": {"ae_coeffs": [8, 4, 4],
+                                    "transformer": {"use_rotary_positional_embeddings": True}}})
+    m = Refiner(cfg)
+    z = torch.randn(1, 3, m.latent_channels, 4, 6)
+    assert m(z, z, torch.tensor([3])).shape == z.shape
+    assert grid_crop_region((2, 3), 6, 4) == ((0, 0), (4, 6))
+    assert grid_crop_region((2, 2), 6, 4) == ((0, 1), (4, 5))

@@ -1,0 +1,45 @@
+"""Training: finite decreasing-ish loss, bit-for-bit resume, exact target-latent cache."""
+
+import json
+
+import torch
+
+from lightcrafter.refiner import load_model, resolve_config, train
+from lightcrafter.refiner.toy import ToyDataset
+from lightcrafter.refiner.training import TargetLatentCache
+
+torch.set_num_threads(1)
+
+CFG = {"model": {"ae_coeffs": [8, 4, 4]}, "train": {"max_steps": 6, "checkpoint_every": 100, "lr": 1e-3}}
+
+
+def test_resume_is_bit_for_bit(tmp_path):
+    cfg = resolve_config(CFG)
+    straight = train(cfg, ToyDataset(3), tmp_path / "a", progress=False)["losses"]
+    first = train(cfg, ToyDataset(3), tmp_path / "b", progress=False, stop_after=3)
+    assert first["step"] == 3 and not (tmp_path / "b" / "model.pt").exists()  # "killed" before the end
+    resumed = train(cfg, ToyDataset(3), tmp_path / "b", progress=False)["losses"]
+    assert len(straight) == 6 and resumed == straight
+    a = torch.load(tmp_path / "a" / "model.pt", weights_only=False)["transformer"]
+    b = torch.load(tmp_path / "b" / "model.pt", weights_only=False)["transformer"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert "resumed from" in (tmp_path / "b" / "train.log").read_text()
+    curve = json.loads((tmp_path / "a" / "loss_curve.json").read_text())
+    assert curve["loss_per_optimizer_step"] == straight
+
+
+def test_trained_model_reloads_with_infer_overrides(tmp_path):
+    cfg = resolve_config({**CFG, "train": {**CFG["train"], "max_steps": 1}})
+    train(cfg, ToyDataset(1), tmp_path, progress=False)
+    m = load_model(tmp_path / "model.pt", {"infer": {"num_steps": 3}})
+    assert m.cfg["infer"]["num_steps"] == 3 and m.cfg["infer"]["window"] == cfg["infer"]["window"]
+
+
+def test_target_latent_cache_is_exact():
+    from lightcrafter.refiner import DCTPatchAutoencoder
+
+    ae = DCTPatchAutoencoder(16)
+    cache = TargetLatentCache(ae)
+    v = ToyDataset(1)[0]["target"]
+    assert torch.equal(cache.get("p", v), ae.encode(v[None]))
+    assert cache.get("p", v) is cache.get("p", v)
