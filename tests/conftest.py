@@ -3,6 +3,15 @@ from pathlib import Path
 
 import pytest
 
+# bpy and mitsuba each bundle an Embree library with the same soname; whichever loads first is
+# shared by both. bpy needs the newer one (its import fails with "undefined symbol
+# rtcGetSceneTraversable" after mitsuba), while mitsuba works with bpy's. Test modules import
+# mitsuba at collection, so load bpy first. The pipeline itself never mixes them in one process.
+try:
+    import bpy  # noqa: F401
+except ImportError:  # pragma: no cover - bpy is a pinned requirement
+    pass
+
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))

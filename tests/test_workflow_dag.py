@@ -49,6 +49,40 @@ def test_paper_config_counts_and_dag_build_time(paper_config):
     print(f"paper-config dry run: {sum(counts.values())} jobs in {seconds:.1f} s")
 
 
+def refiner_expected_counts(cfg):
+    """The clean_buffers evaluation needs train/test scenes only, and only target lightings."""
+    s = cfg["scenes"]
+    plans = [scenes.plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
+    used = [p for p in plans if p["split"] in ("train", "test")]
+    trajs = [t for p in used for t in p["trajectories"]]
+    targets = sum(len(t["target_lights"]) for t in trajs)
+    return {"generate_assets": 1, "curate_assets": 1, "sample_scene": len(used), "render_buffers": len(trajs),
+            "render_rgb": targets, "render_proxy_gt": targets, "dataset_clean_buffers": 1, "train_refiner": 1,
+            "infer_refiner": 1, "evaluate_refiner": 1}
+
+
+@pytest.mark.parametrize("configfile", [None, "config/paper.yaml"])
+def test_clean_buffers_evaluation_pulls_only_what_it_needs(default_config, paper_config, configfile):
+    cfg = paper_config if configfile else default_config
+    res = dry_run("results/eval/clean_buffers/metrics.json", configfile=configfile)
+    assert res.returncode == 0, res.stderr[-2000:]
+    counts = job_counts(res.stdout)
+    exp = refiner_expected_counts(cfg)
+    assert counts == exp
+    # Source-lighting radiance and recon-split scenes are not needed by this target.
+    all_rgb = sum(len(t["render_lights"]) for i in range(cfg["scenes"]["count"])
+                  for t in scenes.plan_scene(cfg["scenes"], cfg["seed"], i)["trajectories"])
+    assert counts["render_rgb"] < all_rgb
+
+
+@pytest.mark.parametrize("variant", ["full", "no_real", "no_synthetic"])
+def test_variants_without_data_stages_cannot_be_requested(variant):
+    res = dry_run(f"results/eval/{variant}/metrics.json")
+    assert res.returncode != 0
+    out = res.stdout + res.stderr
+    assert "MissingRuleException" in out and f"results/eval/{variant}/metrics.json" in out, out[-1500:]
+
+
 def test_single_rgb_target_pulls_only_its_chain(default_config):
     plan = scenes.plan_scene(default_config["scenes"], 0, 0)
     t = plan["trajectories"][0]
