@@ -28,6 +28,16 @@ def test_resume_is_bit_for_bit(tmp_path):
     assert curve["loss_per_optimizer_step"] == straight
 
 
+def test_checkpoint_of_another_config_is_not_resumed(tmp_path):
+    """A config change (here: a wider latent) after a killed run trains afresh instead of crashing."""
+    train(resolve_config(CFG), ToyDataset(3), tmp_path, progress=False, stop_after=2)
+    other = resolve_config({**CFG, "model": {"ae_coeffs": [16, 8, 8]}})
+    fresh = train(other, ToyDataset(3), tmp_path / "ref", progress=False)["losses"]
+    again = train(other, ToyDataset(3), tmp_path, progress=False)["losses"]
+    assert again == fresh
+    assert "training from scratch" in (tmp_path / "train.log").read_text()
+
+
 def test_trained_model_reloads_with_infer_overrides(tmp_path):
     cfg = resolve_config({**CFG, "train": {**CFG["train"], "max_steps": 1}})
     train(cfg, ToyDataset(1), tmp_path, progress=False)

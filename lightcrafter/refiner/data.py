@@ -61,6 +61,10 @@ class PairsDataset:
     def __len__(self) -> int:
         return len(self.records)
 
+    @property
+    def pair_ids(self) -> list[str]:
+        return [r["pair_id"] for r in self.records]
+
     def __getitem__(self, i: int) -> dict:
         if i in self._cache:
             return self._cache[i]

@@ -84,6 +84,26 @@ class TargetLatentCache:
         return self.store[pair_id]
 
 
+# Keys that may change between a killed run and its resumption without invalidating it.
+_RESUMABLE_CHANGES = {("train", "max_steps"), ("train", "checkpoint_every"), ("train", "log_every")}
+
+
+def run_fingerprint(cfg: dict, dataset) -> str:
+    """Hash of what a checkpoint's state depends on: the config (bar run-length keys) and the pairs.
+
+    A checkpoint is only resumed when this matches; otherwise training starts afresh.
+    """
+    import hashlib
+    import json
+
+    c = {k: (dict(v) if isinstance(v, dict) else v) for k, v in cfg.items() if k != "infer"}
+    for sec, key in _RESUMABLE_CHANGES:
+        c.get(sec, {}).pop(key, None)
+    ids = getattr(dataset, "pair_ids", None) or [dataset[i]["pair_id"] for i in range(len(dataset))]
+    blob = json.dumps([c, ids], sort_keys=True, default=str).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
 def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True) -> dict:
     """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float}.
 
@@ -114,9 +134,15 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     gen = torch.Generator().manual_seed(cfg["seed"])
     step, losses = 0, []
 
+    fingerprint = run_fingerprint(cfg, dataset)
     ckpt = latest_checkpoint(out_dir)
-    if ckpt is not None:
-        st = torch.load(ckpt, map_location="cpu", weights_only=False)
+    st = torch.load(ckpt, map_location="cpu", weights_only=False) if ckpt is not None else None
+    if st is not None and st.get("fingerprint") != fingerprint:
+        log.info("checkpoint %s belongs to another config or data set; training from scratch", ckpt.name)
+        for old in (out_dir / CKPT_DIR).glob("*"):
+            old.unlink()
+        st = None
+    if st is not None:
         model.transformer.load_state_dict(st["transformer"])
         model.ae.load_state_dict(st["ae"])
         opt.load_state_dict(st["optimizer"])
@@ -152,6 +178,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
             "step": step,
             "losses": losses,
             "config": cfg,
+            "fingerprint": fingerprint,
         }
         name = f"step_{step:07d}.pt"
         save_checkpoint(out_dir / CKPT_DIR / name, state)
