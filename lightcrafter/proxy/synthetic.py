@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lightcrafter.camera import intrinsics, opencv_c2w
 from lightcrafter.io import Buffers
 from lightcrafter.proxy.geometry import camera_rays
 
@@ -31,22 +32,9 @@ class Ground:
     half_size_m: float = 6.0
 
 
-def intrinsics(width: int, height: int, fov_x_rad: float) -> np.ndarray:
-    fx = (width / 2.0) / np.tan(fov_x_rad / 2.0)
-    return np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fx, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def look_at(eye, target) -> np.ndarray:
-    """OpenCV camera-to-world looking from ``eye`` at ``target`` with world +Z up."""
-    eye = np.asarray(eye, float)
-    f = np.asarray(target, float) - eye
-    f /= np.linalg.norm(f)
-    up = np.array([0.0, 0.0, 1.0]) if abs(f[2]) < 0.999 else np.array([0.0, 1.0, 0.0])
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = r, np.cross(f, r), f, eye
-    return c2w
+# Shared camera math, re-exported for the tests and benchmarks that build synthetic clips.
+__all__ = ["Ground", "intrinsics", "look_at", "raycast_buffers"]
+look_at = opencv_c2w
 
 
 def raycast_buffers(K: np.ndarray, c2w: np.ndarray, width: int, height: int, spheres=(),
