@@ -3,8 +3,8 @@
     make bench            # all of them
     make bench ONLY=cycles_spp,proxy_spp
 
-Benchmarks that need pipeline outputs (e.g. proxy_vs_cycles, which reads results/gt) run the
-default pipeline's ground truth first via Snakemake.
+Benchmarks that need pipeline outputs (proxy_vs_cycles reads results/gt, refiner_clean_buffers
+the clean_buffers pairs) first bring the default pipeline up to them via Snakemake.
 """
 
 from __future__ import annotations
@@ -16,8 +16,10 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-ORDER = ["cycles_spp", "proxy_spp", "proxy_vs_cycles", "refiner"]
-NEEDS_GROUND_TRUTH = {"proxy_vs_cycles"}
+ORDER = ["cycles_spp", "proxy_spp", "proxy_vs_cycles", "refiner", "refiner_clean_buffers"]
+# Benchmarks that read the default run's outputs, and the Snakemake target they need.
+NEEDS_PIPELINE = {"proxy_vs_cycles": "ground_truth",
+                  "refiner_clean_buffers": "results/datasets/clean_buffers/pairs.jsonl"}
 
 
 def main() -> int:
@@ -26,8 +28,8 @@ def main() -> int:
     names = [n for n in ORDER if (REPO / "benchmarks" / f"{n}.py").is_file() and (not only or n in only)]
     failed = []
     for name in names:
-        if name in NEEDS_GROUND_TRUTH:
-            subprocess.run([sys.executable, "-m", "snakemake", "ground_truth"], cwd=REPO, check=True)
+        if name in NEEDS_PIPELINE:
+            subprocess.run([sys.executable, "-m", "snakemake", NEEDS_PIPELINE[name]], cwd=REPO, check=True)
         t0 = time.perf_counter()
         print(f"== benchmark {name}", flush=True)
         res = subprocess.run([sys.executable, str(REPO / "benchmarks" / f"{name}.py")], cwd=REPO)
