@@ -9,6 +9,11 @@ x0 estimate at t = 999 (where zero-terminal-SNR noise carries no signal). Writes
 (varied: training steps; metric: refined PSNR at CFG 6; also CFG 1 and the proxy's PSNR) + PNG.
 
     .venv/bin/python benchmarks/refiner_clean_buffers.py [--steps 200 400 800 1600]
+
+More data: run the workflow with more scenes in another folder, then from there
+    snakemake results/datasets/clean_buffers/pairs.jsonl -d /tmp/more --configfile more.yaml
+(more.yaml: ``scenes: {count: 12}``; the target goes before --configfile, which takes several files)
+    cd /tmp/more && python /path/to/benchmarks/refiner_clean_buffers.py --name refiner_clean_buffers_12scenes
 """
 
 from __future__ import annotations
@@ -36,9 +41,12 @@ def main() -> int:
     from lightcrafter.report import plot_bench
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--pairs", default=str(REPO / "results/datasets/clean_buffers/pairs.jsonl"))
+    ap.add_argument("--pairs", default="results/datasets/clean_buffers/pairs.jsonl",
+                    help="pairs manifest; its relative paths resolve against the working directory")
     ap.add_argument("--steps", type=int, nargs="+", default=[200, 400, 800, 1600])
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--name", default="refiner_clean_buffers",
+                    help="benchmark name; writes results/bench/NAME.json (e.g. for a larger data set)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     user = yaml.safe_load((REPO / "config/config.yaml").read_text())["refiner"]
@@ -90,7 +98,7 @@ def main() -> int:
                                round(infer_s / max(len(test_ds), 1), 3)})
                 print(points[-1], flush=True)
     bench = {
-        "name": "refiner_clean_buffers", "varied": "training steps (optimizer steps, tiny preset)",
+        "name": a.name, "varied": "training steps (optimizer steps, tiny preset)",
         "metric": "psnr_db", "higher_is_better": True,
         "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
         "chosen": cfg["train"]["max_steps"], "chosen_series": "refined, CFG 6",
@@ -100,7 +108,7 @@ def main() -> int:
                  "mean over held-out test pairs",
         "points": points,
     }
-    out = REPO / "results/bench/refiner_clean_buffers.json"
+    out = REPO / "results/bench" / f"{a.name}.json"
     write_json(out, bench)
     plot_bench(bench, out.with_suffix(".png"))
     print(f"proxy alone: {proxy_psnr:.2f} dB; wrote {out}")
