@@ -41,8 +41,11 @@ def plot_bench(bench: dict, png_path: str | Path) -> None:
         ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
     ax.set_xlabel("seconds")
     ax.set_ylabel(bench["metric"])
-    ax.set_title(f"{bench['name']}: {bench['varied']} (chosen: {bench.get('chosen')})", fontsize=9)
-    if len(series) > 1:
+    for key, value in bench.get("baseline", {}).items():
+        if key.endswith(bench["metric"]) and isinstance(value, (int, float)):
+            ax.axhline(value, color="grey", ls="--", lw=1, label=key.removesuffix("_" + bench["metric"]))
+    ax.set_title(f"{bench['name']}\nvaried: {bench['varied']}; chosen: {bench.get('chosen')}", fontsize=8)
+    if len(series) > 1 or bench.get("baseline"):
         ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
