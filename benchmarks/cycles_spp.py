@@ -31,13 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from lightcrafter import io  # noqa: E402
+from lightcrafter.metrics import psnr_db  # noqa: E402
 from lightcrafter.blender import build, render, testing  # noqa: E402
-
-
-def psnr_db(x: np.ndarray, ref: np.ndarray) -> float:
-    """PSNR in dB for values with peak 1."""
-    mse = float(np.mean((np.asarray(x, np.float64) - np.asarray(ref, np.float64)) ** 2))
-    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
 
 
 def render_rgb_once(built, spec: dict, spp: int, seed: int) -> tuple[np.ndarray, float]:

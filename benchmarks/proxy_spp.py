@@ -34,19 +34,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from lightcrafter import envmap, io  # noqa: E402
+from lightcrafter.metrics import display_psnr_db  # noqa: E402
 from lightcrafter.proxy import synthetic as syn  # noqa: E402
 from lightcrafter.proxy.geometry import pixel_quad_mesh  # noqa: E402
 from lightcrafter.proxy.lighting import Lighting  # noqa: E402
 from lightcrafter.proxy.renderer import FrameView, ProxyRenderer, RenderSettings  # noqa: E402
 
 ROT_Z = 0.5
-
-
-def psnr_db(x: np.ndarray, ref: np.ndarray) -> float:
-    """PSNR in dB (peak 1) between display-transformed linear images."""
-    a, b = io.linear_to_display(x).astype(np.float64), io.linear_to_display(ref).astype(np.float64)
-    mse = float(np.mean((a - b) ** 2))
-    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
 
 
 def bench_scene(width: int, height: int):
@@ -125,7 +119,7 @@ def main() -> None:
     points = []
     for spp in a.spp:
         img, sec = time_r(r, view, spp, seed=0, repeats=a.repeats)
-        points.append({"setting": spp, "seconds": round(sec, 5), "value": round(psnr_db(img, ref), 3)})
+        points.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(img, ref), 3)})
         print(f"R       spp {spp:5d}: {sec:8.4f} s  {points[-1]['value']:6.2f} dB", flush=True)
 
     mesh = pixel_quad_mesh(b.depth, b.mask > 0.5, K, c2w, b.normal)
@@ -136,8 +130,8 @@ def main() -> None:
     cyc = cyc + [(cref, 0.0)]
     c_points, c_own = [], []
     for spp, (img, sec) in zip(a.cycles_spp, cyc[:-1]):
-        c_points.append({"setting": spp, "seconds": round(sec, 5), "value": round(psnr_db(img, ref), 3)})
-        c_own.append({"setting": spp, "seconds": round(sec, 5), "value": round(psnr_db(img, cref), 3)})
+        c_points.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(img, ref), 3)})
+        c_own.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(img, cref), 3)})
         print(f"Cycles  spp {spp:5d}: {sec:8.4f} s  {c_points[-1]['value']:6.2f} dB (own ref {c_own[-1]['value']:6.2f})",
               flush=True)
     r_own = [dict(p) for p in points]
@@ -155,7 +149,7 @@ def main() -> None:
         "cycles_points_own_ref": c_own,
         "reference": {"renderer": "R", "spp": a.ref_spp, "seed": 12345, "seconds": round(ref_s, 4),
                       "cycles_own_ref_spp": a.cycles_ref_spp},
-        "cycles_vs_r_reference_psnr_db": round(psnr_db(cref, ref), 3),
+        "cycles_vs_r_reference_psnr_db": round(display_psnr_db(cref, ref), 3),
         "speed_ratio_at_equal_error": {
             "definition": "Cycles seconds / R seconds reaching the same display PSNR; each vs R's reference",
             "at_common_best_db": round(common, 2), "ratio_at_common_best": ratios(points, c_points, [common])[f"{common:.1f}"],

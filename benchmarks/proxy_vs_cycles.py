@@ -41,12 +41,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from lightcrafter import io  # noqa: E402
-
-
-def psnr_db(x: np.ndarray, ref: np.ndarray) -> float:
-    a, b = io.linear_to_display(x).astype(np.float64), io.linear_to_display(ref).astype(np.float64)
-    mse = float(np.mean((a - b) ** 2))
-    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
+from lightcrafter.metrics import display_psnr_db  # noqa: E402
 
 
 def find_clips(results: Path) -> list[tuple[str, str, str, Path]]:
@@ -118,7 +113,7 @@ def main() -> None:
             rgb_man = io.read_json(gt / "rgb" / f"{light}.json")
             cyc = [io.read_rgb_exr(gt / f) for f in rgb_man["frames"]]
             ours, sec, source = proxy_frames(results, scene, traj, light, gt, a.spp, a.visibility, Path(tmp))
-            psnrs = [psnr_db(p, c) for p, c in zip(ours, cyc)]
+            psnrs = [display_psnr_db(p, c) for p, c in zip(ours, cyc)]
             ratio = float(np.mean([p.mean() for p in ours]) / max(np.mean([c.mean() for c in cyc]), 1e-12))
             job = cycles_job_seconds(Path(a.logs), scene, traj, light)
             rows.append({"scene": scene, "trajectory": traj, "light": light, "motion": motion,

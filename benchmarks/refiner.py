@@ -59,7 +59,9 @@ TILING_LATENT_HW = (16, 24)  # latent grid of the tiling timing/memory runs (= 1
 
 def _disp(v: torch.Tensor) -> np.ndarray:
     """(3, N, H, W) in [-1, 1] -> (N, H, W, 3) display in [0, 1]."""
-    return ((v + 1) / 2).clamp(0, 1).permute(1, 2, 3, 0).numpy()
+    from lightcrafter.refiner.data import to_display_frames
+
+    return to_display_frames(v)
 
 
 def bench_autoencoder() -> list[dict]:

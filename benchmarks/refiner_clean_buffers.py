@@ -54,7 +54,7 @@ def main() -> int:
     cfg = resolve_config(base)
     train_ds = PairsDataset(a.pairs, "train", cfg["data"]["exposure_ev"], cache=True)
     test_ds = PairsDataset(a.pairs, "test", cfg["data"]["exposure_ev"], cache=True)
-    disp = lambda t: ((t.numpy().transpose(1, 2, 3, 0) + 1) / 2).clip(0, 1)  # noqa: E731
+    from lightcrafter.refiner.data import to_display_frames as disp
     proxy_psnr = float(np.mean([video_psnr_db(disp(test_ds[i]["proxy"]), disp(test_ds[i]["target"]))
                                 for i in range(len(test_ds))]))
     proxy_ssim = float(np.mean([video_ssim(disp(test_ds[i]["proxy"]), disp(test_ds[i]["target"]))

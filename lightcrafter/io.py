@@ -113,6 +113,43 @@ def read_jsonl(path: str | os.PathLike) -> list[dict]:
     return out
 
 
+def fingerprint(obj) -> str:
+    """Short sha256 of JSON-serialisable data (sorted keys): equal inputs, equal fingerprint."""
+    import hashlib
+
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def claim_frame_dir(frame_dir: str | os.PathLike, inputs) -> int:
+    """Drop frames in ``frame_dir`` that were not rendered from ``inputs``; return how many went.
+
+    Frame folders keep complete frames across a killed run (resume), but a rerun with other
+    inputs (scene spec, settings, upstream buffers) must not reuse them. The folder's
+    ``.inputs.json`` (written by :func:`stamp_frame_dir` before the first frame) records the
+    fingerprint of what its frames come from; when it differs or is missing, every ``*.exr``
+    in the folder is deleted.
+    """
+    frame_dir = Path(frame_dir)
+    stamp = frame_dir / ".inputs.json"
+    have = None
+    if stamp.is_file():
+        try:
+            have = json.loads(stamp.read_text()).get("fingerprint")
+        except (json.JSONDecodeError, AttributeError):
+            have = None
+    removed = 0
+    if have != fingerprint(inputs):
+        for f in frame_dir.glob("*.exr"):
+            f.unlink()
+            removed += 1
+    return removed
+
+
+def stamp_frame_dir(frame_dir: str | os.PathLike, inputs) -> None:
+    """Record that frames in ``frame_dir`` are rendered from ``inputs`` (call before writing any)."""
+    write_json(Path(frame_dir) / ".inputs.json", {"fingerprint": fingerprint(inputs)})
+
+
 # ----------------------------------------------------------------------------- EXR
 def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], half: bool = False) -> None:
     """Write single-part scanline EXR with one float channel per key (H x W arrays), atomically."""

@@ -15,7 +15,7 @@ from pathlib import Path
 from lightcrafter.io import DataError
 
 BUILTIN_PREFIX = "builtin:"
-HDRI_SUFFIXES = (".exr", ".hdr")
+HDRI_SUFFIXES = (".exr",)  # OpenEXR only: Cycles and the proxy renderer (lightcrafter.envmap) both read it
 
 
 @functools.lru_cache(maxsize=1)

@@ -28,6 +28,13 @@ def psnr_db(a: np.ndarray, b: np.ndarray) -> float:
     return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
 
 
+def display_psnr_db(linear: np.ndarray, linear_ref: np.ndarray, exposure_ev: float = 0.0) -> float:
+    """PSNR (dB, peak 1) of two LINEAR images after the shared display transform (io.linear_to_display)."""
+    from .io import linear_to_display
+
+    return psnr_db(linear_to_display(linear, exposure_ev), linear_to_display(linear_ref, exposure_ev))
+
+
 def video_psnr_db(a: np.ndarray, b: np.ndarray) -> float:
     """Mean over frames of per-frame PSNR (dB), each capped at PSNR_CAP_DB."""
     return float(np.mean([min(psnr_db(x, y), PSNR_CAP_DB) for x, y in zip(a, b)]))

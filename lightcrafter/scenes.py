@@ -249,9 +249,11 @@ def hdri_pool(scfg: dict) -> list[str]:
 
     d = scfg.get("hdri_dir")
     if d:
-        files = sorted(str(p) for p in Path(d).glob("*.exr")) + sorted(str(p) for p in Path(d).glob("*.hdr"))
+        from .lights import HDRI_SUFFIXES
+
+        files = sorted(str(p) for p in Path(d).iterdir() if p.suffix.lower() in HDRI_SUFFIXES) if Path(d).is_dir() else []
         if not files:
-            raise ConfigError(f"scenes.hdri_dir={d}: no .exr/.hdr files found; point it at a folder of "
+            raise ConfigError(f"scenes.hdri_dir={d}: no {'/'.join(HDRI_SUFFIXES)} files found; point it at a folder of "
                               "HDR environment maps or set it to null for the built-in ones")
         return files
     from .lights import builtin_hdris

@@ -18,11 +18,11 @@ import _cli  # noqa: F401  (puts the repository on sys.path)
 
 from lightcrafter.io import DataError, read_json, write_json
 from lightcrafter.metrics import perceptual_metrics, temporal_difference, video_psnr_db, video_ssim
-from lightcrafter.refiner.data import PairsDataset, load_frames
+from lightcrafter.refiner.data import PairsDataset, load_frames, to_display_frames
 
 
 def _disp(t):  # (3, N, H, W) in [-1, 1] -> (N, H, W, 3) in [0, 1]
-    return ((t.numpy().transpose(1, 2, 3, 0) + 1) / 2).clip(0, 1)
+    return to_display_frames(t)
 
 
 def _mean_or_none(values):

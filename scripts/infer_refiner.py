@@ -19,6 +19,7 @@ import _cli  # noqa: F401  (puts the repository on sys.path)
 
 from lightcrafter.io import DataError, display_to_linear, to_uint8, write_json, write_rgb_exr, write_video
 from lightcrafter.refiner import MissingWeightsError, PairsDataset, load_model, refine_video
+from lightcrafter.refiner.data import to_display_frames
 
 
 def autoencoder_round_trip_psnr_db(model, target, pad_mode: str) -> float:
@@ -29,8 +30,7 @@ def autoencoder_round_trip_psnr_db(model, target, pad_mode: str) -> float:
     video, n = pad_to_4k1(target[None], pad_mode)
     with torch.no_grad():
         rt = model.ae.decode(model.ae.encode(video))[0, :, :n].clamp(-1, 1)
-    to_disp = lambda v: ((v + 1) / 2).permute(1, 2, 3, 0).numpy()  # noqa: E731
-    return video_psnr_db(to_disp(rt), to_disp(target))
+    return video_psnr_db(to_display_frames(rt), to_display_frames(target))
 
 
 def main() -> int:
@@ -60,7 +60,7 @@ def main() -> int:
         refined = refine_video(model, item["proxy"][None], cfg, generator=gen)[0]  # (3, N, H, W) in [-1, 1]
         sec = time.perf_counter() - t0
         ae_psnr = autoencoder_round_trip_psnr_db(model, item["target"], cfg["infer"]["pad_frames"])
-        disp = ((refined + 1) / 2).clamp(0, 1).permute(1, 2, 3, 0).numpy()  # (N, H, W, 3) display
+        disp = to_display_frames(refined)  # (N, H, W, 3) display
         for f, frame in enumerate(disp):
             write_rgb_exr(out / item["pair_id"] / f"{f:04d}.exr", display_to_linear(frame, cfg["data"]["exposure_ev"]))
         write_video(out / f"{item['pair_id']}.mp4", to_uint8(disp))

@@ -144,14 +144,18 @@ def test_blender_camera_matches_cameras_json(scene):
 def test_normals_unit_and_materials_in_range(orbit_buffers):
     out, n = orbit_buffers
     assert n == 3
+    # Raw channels as written (io.read_buffers would re-normalise and clip, hiding a bad writer).
     for f in sorted((out / "buffers").glob("*.exr")):
-        b = io.read_buffers(f)
-        m = b.mask > 0.5
+        ch = io.read_exr(f, io.BUFFER_CHANNELS)
+        m = ch["mask"] > 0.5
+        assert set(np.unique(ch["mask"])) <= {0.0, 1.0}
         assert 0.5 < m.mean() < 1.0  # objects and ground in view, some sky
-        np.testing.assert_allclose(np.linalg.norm(b.normal[m], axis=-1), 1.0, atol=1e-4)
-        assert np.isfinite(b.depth[m]).all() and (b.depth[m] > 0).all() and np.isinf(b.depth[~m]).all()
-        for arr in (b.albedo, b.roughness, b.metallic):
-            assert arr.min() >= 0.0 and arr.max() <= 1.0
+        normal = np.stack([ch[f"normal.{c}"] for c in "XYZ"], axis=-1)
+        np.testing.assert_allclose(np.linalg.norm(normal[m], axis=-1), 1.0, atol=1e-4)
+        depth = ch["depth"]
+        assert np.isfinite(depth[m]).all() and (depth[m] > 0).all() and np.isinf(depth[~m]).all()
+        for name in ("albedo.R", "albedo.G", "albedo.B", "roughness", "metallic"):
+            assert np.isfinite(ch[name]).all() and ch[name].min() >= 0.0 and ch[name].max() <= 1.0
 
 
 @pytest.mark.slow
@@ -234,6 +238,9 @@ def test_rgb_frames_and_resume(scene, orbit_buffers):
     assert render.render_buffers(spec, "orbit", out) == 1
     # Deterministic up to float round-off (fixed seed; multi-threaded BVH builds differ by ~1e-5).
     np.testing.assert_allclose(io.read_rgb_exr(out / "rgb" / "L0" / "0001.exr"), frames[1], rtol=1e-3, atol=1e-4)
+    # Other inputs (here: fewer samples) never reuse frames rendered from the old ones.
+    assert render.render_rgb(spec, "orbit", "L0", out, spp=2) == 3
+    assert render.render_rgb(spec, "orbit", "L0", out, spp=2) == 0
 
 
 def _run_cli(*args) -> subprocess.CompletedProcess:

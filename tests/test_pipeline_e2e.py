@@ -63,7 +63,9 @@ def test_scene_specs_are_reproducible(run_dir, tmp_path):
     """Same config and seed: byte-identical scene specs and asset manifest in a second workdir."""
     res = snakemake(tmp_path, "scene_specs")
     assert res.returncode == 0, res.stderr[-3000:]
-    for spec in (run_dir / "results/scenes").glob("*/scene.json"):
+    specs = sorted((run_dir / "results/scenes").glob("*/scene.json"))
+    assert len(specs) == 2
+    for spec in specs:
         again = tmp_path / "results/scenes" / spec.parent.name / "scene.json"
         assert again.read_bytes() == spec.read_bytes()
     a = json.loads((run_dir / "results/assets/manifest.json").read_text())
@@ -98,5 +100,7 @@ def test_pairs_are_reproducible(run_dir, tmp_path):
     from lightcrafter.io import read_rgb_exr
 
     first = json.loads(a.splitlines()[0])
-    for f in sorted((run_dir / first["proxy"]).glob("*.exr")):
+    proxy_frames = sorted((run_dir / first["proxy"]).glob("*.exr"))
+    assert len(proxy_frames) == first["num_frames"]
+    for f in proxy_frames:
         np.testing.assert_allclose(read_rgb_exr(tmp_path / first["proxy"] / f.name), read_rgb_exr(f), atol=1e-6)

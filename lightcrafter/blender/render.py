@@ -123,10 +123,14 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
     serve = buffer_frame_of(spec, traj_id)
     distinct = sorted(set(serve))
     files = {i: out_dir / "buffers" / f"{i:04d}.exr" for i in distinct}
-    todo = [i for i in distinct if not _readable(files[i], io.read_buffers)]
     build.check_inputs(spec)
+    inputs = {"what": "buffers", "spec": spec, "trajectory": traj_id, "spp": BUFFER_SPP,
+              "filter_px": BUFFER_FILTER_WIDTH_PX}
+    io.claim_frame_dir(out_dir / "buffers", inputs)
+    todo = [i for i in distinct if not _readable(files[i], io.read_buffers)]
     if todo:
         built = build.build_scene(spec, light_id=None)
+        io.stamp_frame_dir(out_dir / "buffers", inputs)
         build.configure_render(
             spec,
             samples=BUFFER_SPP,
@@ -179,10 +183,14 @@ def render_rgb(
     spp = int(spp or rcfg.get("spp", 16))
     n = int(spec["num_frames"])
     files = [out_dir / "rgb" / light_id / f"{i:04d}.exr" for i in range(n)]
-    todo = [i for i in range(n) if not _readable(files[i], io.read_rgb_exr)]
     build.check_inputs(spec, light_id)
+    inputs = {"what": "rgb", "spec": spec, "trajectory": traj_id, "light": light_id, "spp": spp,
+              "filter_px": RGB_FILTER_WIDTH_PX}
+    io.claim_frame_dir(out_dir / "rgb" / light_id, inputs)
+    todo = [i for i in range(n) if not _readable(files[i], io.read_rgb_exr)]
     if todo:
         built = build.build_scene(spec, light_id=light_id)
+        io.stamp_frame_dir(out_dir / "rgb" / light_id, inputs)
         build.configure_render(
             spec,
             samples=spp,

@@ -112,6 +112,17 @@ def render_clip(buffers_json: str | Path, scene_json: str | Path, light_id: str,
                            f"frames but {buffers_json} has {len(views)}")
     lighting = lighting_from_spec(spec, light_id, traj_id, exposure_ev=exposure_ev, where=str(scene_json))
     settings = resolve_visibility(settings, trajs[traj_id])
+    # Frames of other inputs (re-rendered buffers, another light or settings) are never reused.
+    upstream = clip_dir / "buffers" / ".inputs.json"
+    inputs = {
+        "what": "proxy", "buffers_manifest": man, "buffers_stamp": upstream.read_text() if upstream.is_file() else None,
+        "cameras": io.read_json(clip_dir / "cameras.json") if (clip_dir / "cameras.json").is_file() else None,
+        "lighting": [l for l in spec.get("lightings", []) if l.get("id") == light_id],
+        "trajectory": trajs[traj_id], "settings": _settings_dict(settings), "exposure_ev": exposure_ev,
+        "edits": [_edit_identity(e) for e in edits],
+    }
+    io.claim_frame_dir(out_dir, inputs)
+    io.stamp_frame_dir(out_dir, inputs)
     frames, renderer, seconds = render_views(views, lighting, settings, out_dir, edits)
     fps = float(spec.get("fps", 24))
     preview = out_dir.with_suffix(".mp4")
@@ -130,6 +141,15 @@ def render_clip(buffers_json: str | Path, scene_json: str | Path, light_id: str,
     }
     io.write_json(out_dir.with_suffix(".json"), manifest)
     return manifest
+
+
+def _edit_identity(e: MaterialEdit) -> dict:
+    """An edit's values, with its mask as a digest (a repr would elide most of the array)."""
+    import hashlib
+
+    d = {k: v for k, v in asdict(e).items() if k != "mask"}
+    d["mask"] = None if e.mask is None else hashlib.sha256(np.ascontiguousarray(e.mask, np.float32).tobytes()).hexdigest()
+    return d
 
 
 def _settings_dict(s: RenderSettings) -> dict:

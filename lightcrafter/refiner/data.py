@@ -44,6 +44,11 @@ def load_frames(folder: Path, num_frames: int, exposure_ev: float = 0.0) -> torc
     return torch.from_numpy(arr * 2.0 - 1.0).float()
 
 
+def to_display_frames(video: torch.Tensor) -> np.ndarray:
+    """Inverse layout of :func:`load_frames`: (3, N, H, W) in [-1, 1] -> (N, H, W, 3) display in [0, 1]."""
+    return ((video.detach().cpu().float() + 1) / 2).clamp(0, 1).permute(1, 2, 3, 0).numpy()
+
+
 class PairsDataset:
     """Index-able list of pairs of one split; ``ds[i]`` -> {pair_id, proxy, target} (3, N, H, W) in [-1, 1]."""
 
@@ -64,6 +69,25 @@ class PairsDataset:
     @property
     def pair_ids(self) -> list[str]:
         return [r["pair_id"] for r in self.records]
+
+    def data_identity(self) -> list:
+        """What the pairs' frames are, without reading them: each record and, per proxy/target
+        folder, its manifest text (``{folder}.json``, rewritten whenever the frames are) or else
+        the frames' names, sizes and modification times. Used to decide whether a checkpoint
+        belongs to this data."""
+        md = self.pairs_path.parent
+        out = []
+        for r in self.records:
+            item = [r]
+            for key in ("proxy", "target"):
+                folder = _resolve(r[key], self.root, md)
+                manifest = folder.with_suffix(".json")
+                if manifest.is_file():
+                    item.append(manifest.read_text())
+                else:
+                    item.append(sorted((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in folder.glob("*.exr")))
+            out.append(item)
+        return out
 
     def __getitem__(self, i: int) -> dict:
         if i in self._cache:

@@ -19,10 +19,6 @@ def latent_frames(num_pixel_frames: int) -> int:
     return (num_pixel_frames - 1) // 4 + 1
 
 
-def pixel_frames(num_latent_frames: int) -> int:
-    return 4 * (num_latent_frames - 1) + 1
-
-
 def check_frames(n: int) -> None:
     if n < 1 or (n - 1) % 4:
         lo = max(1, 4 * ((n - 1) // 4) + 1)

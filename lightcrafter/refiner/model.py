@@ -62,8 +62,10 @@ def empty_prompt_embedding(cfg: dict, max_len: int, dim: int) -> torch.Tensor:
         with torch.no_grad():
             emb = enc(ids.input_ids)[0]
         if cache:
-            Path(cache).parent.mkdir(parents=True, exist_ok=True)
-            torch.save(emb, cache)
+            from lightcrafter.io import atomic_path
+
+            with atomic_path(cache) as tmp:  # a killed run never leaves a truncated cache
+                torch.save(emb, tmp)
     if emb.shape[1] < max_len:  # pad to the model's text length
         emb = torch.cat([emb, emb.new_zeros(1, max_len - emb.shape[1], emb.shape[2])], dim=1)
     return emb[:, :max_len]

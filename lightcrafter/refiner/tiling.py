@@ -67,13 +67,12 @@ def fused_prediction(
     """
     if len(windows) == 1 and windows[0] == (0, latent_shape[1]):
         return predict(0, latent_shape[1])
-    num = den = None
+    num = None
     for s, e in windows:
         pred = predict(s, e).float()
         if num is None:
             num = torch.zeros(latent_shape, device=pred.device)
-            den = torch.zeros(latent_shape[1], device=pred.device)
         w = tent_weights(e - s, min_weight).to(pred.device)
         num[:, s:e] += pred * w.view(1, -1, 1, 1, 1)
-        den[s:e] += w
+    den = fusion_weight_sum(latent_shape[1], windows, min_weight).to(num.device)
     return num / (den.view(1, -1, 1, 1, 1) + FUSION_DELTA)

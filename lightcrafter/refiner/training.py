@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lightcrafter.io import atomic_path
+from lightcrafter.io import atomic_path, write_text
 
 from .conditioning import drop_proxy_latent, noisy_proxy, sample_log_sigma
 from .model import Refiner
@@ -89,7 +89,8 @@ _RESUMABLE_CHANGES = {("train", "max_steps"), ("train", "checkpoint_every"), ("t
 
 
 def run_fingerprint(cfg: dict, dataset) -> str:
-    """Hash of what a checkpoint's state depends on: the config (bar run-length keys) and the pairs.
+    """Hash of what a checkpoint's state depends on: the config (bar run-length keys) and the data
+    (the dataset's ``data_identity()`` when it has one -- re-rendered frames change it -- else the pair ids).
 
     A checkpoint is only resumed when this matches; otherwise training starts afresh.
     """
@@ -99,7 +100,10 @@ def run_fingerprint(cfg: dict, dataset) -> str:
     c = {k: (dict(v) if isinstance(v, dict) else v) for k, v in cfg.items() if k != "infer"}
     for sec, key in _RESUMABLE_CHANGES:
         c.get(sec, {}).pop(key, None)
-    ids = getattr(dataset, "pair_ids", None) or [dataset[i]["pair_id"] for i in range(len(dataset))]
+    if hasattr(dataset, "data_identity"):
+        ids = dataset.data_identity()
+    else:
+        ids = getattr(dataset, "pair_ids", None) or [dataset[i]["pair_id"] for i in range(len(dataset))]
     blob = json.dumps([c, ids], sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 
@@ -182,7 +186,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         }
         name = f"step_{step:07d}.pt"
         save_checkpoint(out_dir / CKPT_DIR / name, state)
-        (out_dir / CKPT_DIR / LATEST).write_text(name + "\n")
+        write_text(out_dir / CKPT_DIR / LATEST, name + "\n")
         for old in sorted((out_dir / CKPT_DIR).glob("step_*.pt"))[:-2]:  # keep the last two
             old.unlink()
 

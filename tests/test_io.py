@@ -1,0 +1,68 @@
+"""Shared file contracts: atomic writes, frame-folder claims, NaN-safe buffers, video errors."""
+
+import numpy as np
+import pytest
+
+from lightcrafter import io
+
+
+def test_atomic_path_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "out.json"
+    with pytest.raises(RuntimeError):
+        with io.atomic_path(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("killed")
+    assert not target.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_claim_frame_dir_keeps_frames_of_same_inputs_and_drops_stale_ones(tmp_path):
+    d = tmp_path / "frames"
+    assert io.claim_frame_dir(d, {"spp": 16}) == 0
+    io.stamp_frame_dir(d, {"spp": 16})
+    io.write_rgb_exr(d / "0000.exr", np.ones((2, 3, 3)))
+    assert io.claim_frame_dir(d, {"spp": 16}) == 0  # a resumed run keeps finished frames
+    assert (d / "0000.exr").exists()
+    assert io.claim_frame_dir(d, {"spp": 32}) == 1  # other inputs: frames are stale
+    assert not (d / "0000.exr").exists()
+
+
+def test_frames_without_a_stamp_are_not_trusted(tmp_path):
+    d = tmp_path / "frames"
+    io.write_rgb_exr(d / "0000.exr", np.ones((2, 3, 3)))
+    assert io.claim_frame_dir(d, {"spp": 16}) == 1
+
+
+def test_buffers_with_nan_become_invalid_pixels(tmp_path):
+    h, w = 3, 4
+    b = io.Buffers(depth=np.ones((h, w)), normal=np.tile([0.0, 0.0, 2.0], (h, w, 1)), albedo=np.full((h, w, 3), 1.5),
+                   roughness=np.zeros((h, w)), metallic=np.ones((h, w)), mask=np.ones((h, w)))
+    b.depth[0, 0] = np.nan
+    b.normal[1, 1] = np.nan
+    io.write_buffers(tmp_path / "b.exr", b)
+    r = io.read_buffers(tmp_path / "b.exr")
+    assert r.mask[0, 0] == 0 and r.mask[1, 1] == 0 and r.mask.sum() == h * w - 2
+    assert np.isinf(r.depth[0, 0]) and np.isfinite(r.normal).all() and np.isfinite(r.depth[r.mask > 0]).all()
+    assert np.allclose(np.linalg.norm(r.normal[r.mask > 0], axis=-1), 1.0)
+    assert r.albedo.max() == 1.0
+
+
+def test_missing_exr_channel_names_file_and_channel(tmp_path):
+    io.write_exr(tmp_path / "x.exr", {"depth": np.ones((2, 2))})
+    with pytest.raises(io.DataError, match=r"x\.exr: missing EXR channel\(s\) \['normal.X'"):
+        io.read_buffers(tmp_path / "x.exr")
+
+
+@pytest.mark.parametrize("content, message", [(b"", "video file is empty"), (b"not a video" * 10, "cannot decode video")])
+def test_bad_video_is_a_one_line_error_naming_the_file(tmp_path, content, message):
+    path = tmp_path / "clip.mp4"
+    path.write_bytes(content)
+    with pytest.raises(io.DataError, match=message) as err:
+        io.read_video(path)
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_video_round_trip_pads_odd_sizes(tmp_path):
+    frames = (np.random.default_rng(0).random((3, 33, 45, 3)) * 255).astype(np.uint8)
+    io.write_video(tmp_path / "v.mp4", frames)
+    back, fps = io.read_video(tmp_path / "v.mp4")
+    assert back.shape == (3, 34, 46, 3) and fps == 24.0
