@@ -76,11 +76,12 @@ def proxy_frames(results: Path, scene: str, traj: str, light: str, gt: Path, spp
     from lightcrafter.proxy.clip import read_clip, render_views, resolve_visibility
     from lightcrafter.proxy.lighting import lighting_from_spec
     from lightcrafter.proxy.renderer import RenderSettings
+    from lightcrafter.scenes import trajectory
 
     spec = io.read_json(results / "scenes" / scene / "scene.json")
     views, _ = read_clip(gt / "buffers.json")
     lighting = lighting_from_spec(spec, light, traj)
-    traj_spec = next(t for t in spec["trajectories"] if t["id"] == traj)
+    traj_spec = trajectory(spec, traj)
     settings = resolve_visibility(RenderSettings(spp=spp, visibility=visibility), traj_spec)
     t0 = time.perf_counter()
     frames, renderer, _ = render_views(views, lighting, settings, work / f"{scene}_{traj}_{light}")

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import intrinsics, opencv_c2w  # noqa: F401  (used by checks and tests)
+from .io import DataError
 
 FORMAT = "lightcrafter.scene/1"
 MOTIONS = ("orbit_static", "dynamic_moving", "static_rotating_light")
@@ -354,6 +355,34 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
         "lightings": lightings,
         "trajectories": trajectories,
     }
+
+
+# ----------------------------------------------------------------------------- spec lookups
+def trajectory(spec: dict, traj_id: str, where: str | None = None) -> dict:
+    """The trajectory ``traj_id`` of a spec, checked for a frame list of ``num_frames`` entries.
+
+    ``where`` names the spec file in error messages (default: the scene id).
+    """
+    where = where or f"scene {spec.get('scene_id')!r}"
+    for t in spec.get("trajectories", []):
+        if t.get("id") == traj_id:
+            frames = t.get("frames", [])
+            if not frames or len(frames) != int(spec["num_frames"]):
+                raise DataError(f"{where}: trajectory {traj_id!r} has {len(frames)} frames but "
+                                f"num_frames={spec['num_frames']}; re-sample the scene")
+            return t
+    ids = [t.get("id") for t in spec.get("trajectories", [])]
+    raise DataError(f"{where}: no trajectory {traj_id!r} (has {ids}); fix the trajectory id")
+
+
+def lighting(spec: dict, light_id: str, where: str | None = None) -> dict:
+    """The lighting entry ``light_id`` of a spec (``where`` as in :func:`trajectory`)."""
+    where = where or f"scene {spec.get('scene_id')!r}"
+    for lt in spec.get("lightings", []):
+        if lt.get("id") == light_id:
+            return lt
+    ids = [lt.get("id") for lt in spec.get("lightings", [])]
+    raise DataError(f"{where}: no lighting {light_id!r} (has {ids}); fix the lighting id")
 
 
 # ----------------------------------------------------------------------------- geometry checks

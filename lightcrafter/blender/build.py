@@ -41,7 +41,7 @@ import numpy as np
 from lightcrafter.camera import intrinsics, opencv_c2w  # noqa: F401  (re-exported for callers)
 from lightcrafter.io import DataError
 from lightcrafter.lights import resolve_hdri
-from lightcrafter.scenes import GROUND_PATTERNS, PRIMITIVE_SHAPES
+from lightcrafter.scenes import GROUND_PATTERNS, PRIMITIVE_SHAPES, lighting, trajectory  # noqa: F401
 
 AOV_ALBEDO, AOV_ROUGHNESS, AOV_METALLIC = "albedo", "roughness", "metallic"
 # File-name keys (lower case, matched against the stem) for texture-set ground materials.
@@ -75,27 +75,6 @@ class BuiltScene:
     camera: object = None
     world_mapping: object = None
     lighting: dict | None = None
-
-
-def trajectory(spec: dict, traj_id: str) -> dict:
-    """The trajectory ``traj_id`` of the spec, checked for a frame list of ``num_frames`` entries."""
-    for t in spec.get("trajectories", []):
-        if t.get("id") == traj_id:
-            frames = t.get("frames", [])
-            if len(frames) != int(spec["num_frames"]) or not frames:
-                n = spec["num_frames"]
-                raise DataError(f"trajectory {traj_id!r}: {len(frames)} frames but num_frames={n}; re-sample the scene")
-            return t
-    ids = [t.get("id") for t in spec.get("trajectories", [])]
-    raise DataError(f"trajectory {traj_id!r}: not in scene {spec.get('scene_id')!r} (has {ids}); fix --traj")
-
-
-def lighting(spec: dict, light_id: str) -> dict:
-    for lt in spec.get("lightings", []):
-        if lt.get("id") == light_id:
-            return lt
-    ids = [lt.get("id") for lt in spec.get("lightings", [])]
-    raise DataError(f"lighting {light_id!r}: not in scene {spec.get('scene_id')!r} (has {ids}); fix --light")
 
 
 def check_inputs(spec: dict, light_id: str | None = None) -> None:

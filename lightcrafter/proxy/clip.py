@@ -24,6 +24,8 @@ from lightcrafter import io
 from lightcrafter.proxy.edits import MaterialEdit, apply_edits
 from lightcrafter.proxy.lighting import Lighting, lighting_from_spec
 from lightcrafter.proxy.renderer import FrameView, ProxyRenderer, RenderSettings
+from lightcrafter.scenes import lighting as lighting_entry
+from lightcrafter.scenes import trajectory
 
 
 def read_clip(buffers_json: str | Path) -> tuple[list[FrameView], dict]:
@@ -104,21 +106,19 @@ def render_clip(buffers_json: str | Path, scene_json: str | Path, light_id: str,
     spec = io.read_json(scene_json)
     clip_dir = Path(buffers_json) if Path(buffers_json).is_dir() else Path(buffers_json).parent
     traj_id = traj_id or man.get("trajectory") or clip_dir.resolve().name
-    trajs = {t["id"]: t for t in spec.get("trajectories", [])}
-    if traj_id not in trajs:
-        raise io.DataError(f"{scene_json}: no trajectory {traj_id!r} (from {buffers_json}); available {sorted(trajs)}")
-    if len(trajs[traj_id].get("frames", [])) != len(views):
-        raise io.DataError(f"{scene_json}: trajectory {traj_id!r} has {len(trajs[traj_id].get('frames', []))} "
+    traj = trajectory(spec, traj_id, str(scene_json))
+    if len(traj["frames"]) != len(views):
+        raise io.DataError(f"{scene_json}: trajectory {traj_id!r} has {len(traj['frames'])} "
                            f"frames but {buffers_json} has {len(views)}")
     lighting = lighting_from_spec(spec, light_id, traj_id, exposure_ev=exposure_ev, where=str(scene_json))
-    settings = resolve_visibility(settings, trajs[traj_id])
+    settings = resolve_visibility(settings, traj)
     # Frames of other inputs (re-rendered buffers, another light or settings) are never reused.
     upstream = clip_dir / "buffers" / ".inputs.json"
     inputs = {
         "what": "proxy", "buffers_manifest": man, "buffers_stamp": upstream.read_text() if upstream.is_file() else None,
         "cameras": io.read_json(clip_dir / "cameras.json") if (clip_dir / "cameras.json").is_file() else None,
-        "lighting": [l for l in spec.get("lightings", []) if l.get("id") == light_id],
-        "trajectory": trajs[traj_id], "settings": _settings_dict(settings), "exposure_ev": exposure_ev,
+        "lighting": lighting_entry(spec, light_id, str(scene_json)),
+        "trajectory": traj, "settings": _settings_dict(settings), "exposure_ev": exposure_ev,
         "edits": [_edit_identity(e) for e in edits],
     }
     io.claim_frame_dir(out_dir, inputs)

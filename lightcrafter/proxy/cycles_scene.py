@@ -88,22 +88,11 @@ def _build(job: dict):
         node.attribute_name = name
         nt.links.new(node.outputs[out], bsdf.inputs[sock])
     mesh.materials.append(mat)
-    # world: identical node chain to lightcrafter.blender.build._add_world
-    world = bpy.data.worlds.new("world")
-    world.use_nodes = True
-    wt = world.node_tree
-    bg = wt.nodes["Background"]
-    bg.inputs["Strength"].default_value = job["strength"]
-    coord = wt.nodes.new("ShaderNodeTexCoord")
-    mapping = wt.nodes.new("ShaderNodeMapping")
-    mapping.vector_type = "TEXTURE"
-    mapping.inputs["Rotation"].default_value = (0.0, 0.0, job["rotation_z_rad"])
-    env = wt.nodes.new("ShaderNodeTexEnvironment")
-    env.image = bpy.data.images.load(job["env"])
-    wt.links.new(coord.outputs["Generated"], mapping.inputs["Vector"])
-    wt.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
-    wt.links.new(env.outputs["Color"], bg.inputs["Color"])
-    scene.world = world
+    # world: the ground-truth renderer's own environment set-up (same node chain and importance map)
+    from lightcrafter.blender import build
+
+    build._add_world({"id": "proxy", "hdri": job["env"], "strength": job["strength"],
+                      "rotation_z_rad": job["rotation_z_rad"]})
     # camera
     K, c2w = np.array(job["K"]), np.array(job["c2w"])
     w, h = job["width"], job["height"]
@@ -117,7 +106,7 @@ def _build(job: dict):
     scene.collection.objects.link(cob)
     from mathutils import Matrix
 
-    cob.matrix_world = Matrix((c2w @ np.diag([1.0, -1.0, -1.0, 1.0])).tolist())
+    cob.matrix_world = Matrix((c2w @ build.BLENDER_FROM_OPENCV).tolist())
     scene.camera = cob
     r = scene.render
     r.engine = "CYCLES"

@@ -21,6 +21,7 @@ import numpy as np
 
 from lightcrafter import envmap
 from lightcrafter.io import DataError
+from lightcrafter.scenes import lighting, trajectory
 
 
 @dataclass(frozen=True)
@@ -90,10 +91,7 @@ def lighting_from_spec(spec: dict, light_id: str, traj_id: str | None = None, *,
                        yaw_rad: float = 0.0, pitch_rad: float = 0.0, where: str = "scene.json") -> Lighting:
     """Build the lighting ``light_id`` of a ``lightcrafter.scene/1`` spec (per-frame rotation from
     trajectory ``traj_id`` if given). The HDRI is resolved with ``lightcrafter.lights.resolve_hdri``."""
-    entries = {e["id"]: e for e in spec.get("lightings", [])}
-    if light_id not in entries:
-        raise DataError(f"{where}: no lighting {light_id!r}; available {sorted(entries)}")
-    entry = entries[light_id]
+    entry = lighting(spec, light_id, where)
     env = None
     if entry.get("hdri"):
         from lightcrafter.lights import resolve_hdri
@@ -103,10 +101,7 @@ def lighting_from_spec(spec: dict, light_id: str, traj_id: str | None = None, *,
         env = envmap.apply_exposure(env, exposure_ev, float(entry.get("strength", 1.0)))
     frame_rot: list[float] = []
     if traj_id is not None:
-        trajs = {t["id"]: t for t in spec.get("trajectories", [])}
-        if traj_id not in trajs:
-            raise DataError(f"{where}: no trajectory {traj_id!r}; available {sorted(trajs)}")
-        frame_rot = [float(f.get("light_rotation_z_rad", 0.0)) for f in trajs[traj_id]["frames"]]
+        frame_rot = [float(f.get("light_rotation_z_rad", 0.0)) for f in trajectory(spec, traj_id, where)["frames"]]
     points, areas = local_lights_from_spec(entry, where)
     return Lighting(env=env, rotation_z_rad=float(entry.get("rotation_z_rad", 0.0)),
                     frame_rotation_z_rad=frame_rot, point_lights=points, area_lights=areas)
