@@ -76,13 +76,11 @@ def proxy_frames(results: Path, scene: str, traj: str, light: str, gt: Path, spp
     from lightcrafter.proxy.clip import read_clip, render_views, resolve_visibility
     from lightcrafter.proxy.lighting import lighting_from_spec
     from lightcrafter.proxy.renderer import RenderSettings
-    from lightcrafter.scenes import trajectory
 
     spec = io.read_json(results / "scenes" / scene / "scene.json")
-    views, _ = read_clip(gt / "buffers.json")
+    views, info = read_clip(gt)
     lighting = lighting_from_spec(spec, light, traj)
-    traj_spec = trajectory(spec, traj)
-    settings = resolve_visibility(RenderSettings(spp=spp, visibility=visibility), traj_spec)
+    settings = resolve_visibility(RenderSettings(spp=spp, visibility=visibility), info.scene_static)
     t0 = time.perf_counter()
     frames, renderer, _ = render_views(views, lighting, settings, work / f"{scene}_{traj}_{light}")
     return frames, (time.perf_counter() - t0) / len(frames), "this benchmark"

@@ -1,6 +1,11 @@
-"""Render the PBR proxy of a clip with the forward renderer R (Mitsuba 3) under one scene lighting.
+"""Render the PBR proxy of a clip with the forward renderer R (Mitsuba 3) under one lighting.
 
-Writes OUT/{frame:04d}.exr (linear HDR RGB), OUT.mp4 (display preview) and OUT.json (manifest, last).
+  render_proxy.py --clip CLIP_DIR --lighting LIGHTING.json --out OUT
+  render_proxy.py --clip CLIP_DIR --scene scene.json --light L1 [--traj t0] --out OUT
+
+The lighting is a lighting file (lightcrafter.lighting/1) or a scene spec's lighting (with the
+trajectory's per-frame rotation when --traj is given). Writes OUT/{frame:04d}.exr (linear HDR RGB),
+OUT.mp4 (display preview) and OUT.json (manifest, last).
 """
 
 import argparse
@@ -9,16 +14,19 @@ import _cli
 
 
 def main():
+    from lightcrafter.io import read_json
     from lightcrafter.proxy.clip import render_clip
+    from lightcrafter.proxy.lighting import lighting_from_spec
     from lightcrafter.proxy.renderer import RenderSettings
     from lightcrafter.proxy.visibility import VisibilitySettings
 
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--buffers", required=True, help="folder with buffers.json and cameras.json (or buffers.json)")
-    ap.add_argument("--scene", required=True, help="scene.json (lightings, trajectories)")
-    ap.add_argument("--light", required=True, help="lighting id in scene.json, e.g. L1")
+    ap.add_argument("--clip", required=True, help="clip folder (buffers.json, cameras.json, buffers/)")
+    ap.add_argument("--lighting", default=None, help="lighting file (lightcrafter.lighting/1)")
+    ap.add_argument("--scene", default=None, help="scene.json whose lighting --light is used (instead of --lighting)")
+    ap.add_argument("--light", default=None, help="lighting id in scene.json, e.g. L1")
+    ap.add_argument("--traj", default=None, help="trajectory id in scene.json: its per-frame light rotation")
     ap.add_argument("--out", required=True, help="frame folder; OUT.mp4 and OUT.json are written beside it")
-    ap.add_argument("--traj", default=None, help="trajectory id (default: from buffers.json or the folder name)")
     ap.add_argument("--spp", type=int, default=16, help="samples per pixel")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--exposure-ev", type=float, default=0.0, help="global envmap exposure in EV")
@@ -31,6 +39,8 @@ def main():
     ap.add_argument("--sampler", default="multijitter", help="Mitsuba sampler plugin (multijitter, ldsampler, independent)")
     ap.add_argument("--threads", type=int, default=None, help="Dr.Jit LLVM worker threads")
     a = ap.parse_args()
+    if bool(a.lighting) == bool(a.scene and a.light):
+        ap.error("give either --lighting FILE or --scene SCENE.json with --light ID")
     if a.threads:
         import drjit as dr
 
@@ -39,7 +49,16 @@ def main():
                               bilateral_sigma_px=a.bilateral_sigma_px, visibility=a.visibility, sampler=a.sampler,
                               visibility_mesh=VisibilitySettings(rel_threshold=a.rel_threshold,
                                                                  max_faces=a.visibility_max_faces))
-    render_clip(a.buffers, a.scene, a.light, a.out, traj_id=a.traj, settings=settings, exposure_ev=a.exposure_ev)
+    if a.lighting:
+        lighting = a.lighting
+        if a.exposure_ev:
+            ap.error("--exposure-ev applies to --scene lightings; a lighting file carries its own exposure")
+        extra = {}
+    else:
+        spec = read_json(a.scene)
+        lighting = lighting_from_spec(spec, a.light, a.traj, exposure_ev=a.exposure_ev, where=a.scene)
+        extra = {"scene_id": spec.get("scene_id"), "trajectory": a.traj, "light": a.light}
+    render_clip(a.clip, lighting, a.out, settings=settings, extra=extra)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lightcrafter.io import read_rgb_exr, write_buffers, write_cameras, write_exr, write_json, write_rgb_exr
+from lightcrafter.clip import write_clip
+from lightcrafter.io import read_rgb_exr, write_buffers, write_exr, write_json, write_rgb_exr
 from lightcrafter.proxy import synthetic as syn
 
 REPO = Path(__file__).resolve().parents[1]
@@ -21,9 +22,9 @@ def make_clip(root: Path, env: np.ndarray | None = None) -> tuple[Path, Path]:
     gt = root / "gt" / "s0000" / "t0"
     for i, c in enumerate(c2ws):
         write_buffers(gt / "buffers" / f"{i:04d}.exr", syn.raycast_buffers(K, c, W, H, [syn.Sphere((0, 0, 0.5), 0.5)]))
-    write_cameras(gt / "cameras.json", W, H, [K] * N, c2ws)
-    write_json(gt / "buffers.json", {"format": "lightcrafter.buffers/1", "trajectory": "t0", "num_frames": N,
-                                     "frames": [f"buffers/{i:04d}.exr" for i in range(N)], "cameras": "cameras.json"})
+    write_clip(gt, serve=list(range(N)), K=[K] * N, c2w=c2ws, width=W, height=H, fps=24, camera_static=False,
+               scene_static=True, units="metres", producer={"stage": "test"}, content_id="t0",
+               extra={"trajectory": "t0"})
     env_path = root / "env.exr"
     write_rgb_exr(env_path, np.full((8, 16, 3), 0.5, np.float32) if env is None else env)
     scene = root / "scenes" / "s0000" / "scene.json"
@@ -35,8 +36,9 @@ def make_clip(root: Path, env: np.ndarray | None = None) -> tuple[Path, Path]:
 
 
 def run(gt, scene, out, *extra):
-    return subprocess.run([sys.executable, str(REPO / "scripts" / "render_proxy.py"), "--buffers", str(gt),
-                           "--scene", str(scene), "--light", "L1", "--out", str(out), "--spp", "2", *extra],
+    return subprocess.run([sys.executable, str(REPO / "scripts" / "render_proxy.py"), "--clip", str(gt),
+                           "--scene", str(scene), "--light", "L1", "--traj", "t0", "--out", str(out), "--spp", "2",
+                           *extra],
                           capture_output=True, text=True, timeout=300)
 
 

@@ -183,10 +183,9 @@ def test_auto_visibility_aggregates_only_static_scenes():
     from lightcrafter.proxy.clip import resolve_visibility
 
     s = RenderSettings(visibility="auto")
-    assert resolve_visibility(s, {"motion": "orbit_static", "scene_static": True}).visibility == "aggregate"
-    assert resolve_visibility(s, {"motion": "dynamic_moving", "scene_static": False}).visibility == "frame"
-    assert resolve_visibility(s, {"motion": "dynamic_moving"}).visibility == "frame"
-    assert resolve_visibility(RenderSettings(visibility="none"), {"motion": "dynamic_moving"}).visibility == "none"
+    assert resolve_visibility(s, scene_static=True).visibility == "aggregate"
+    assert resolve_visibility(s, scene_static=False).visibility == "frame"
+    assert resolve_visibility(RenderSettings(visibility="none"), scene_static=False).visibility == "none"
 
 
 def test_stratified_sampler_beats_independent_at_equal_spp():

@@ -2,9 +2,9 @@
 
 Output layout (``out_dir`` is the trajectory folder, ``results/gt/{scene}/{traj}``)::
 
-    cameras.json                  all num_frames cameras, OpenCV convention (lightcrafter.io.write_cameras)
-    buffers/{frame:04d}.exr       G-buffers of the distinct frames only (``buffer_frames``)
-    buffers.json                  manifest, written last: which buffer file serves each frame
+    cameras.json, buffers/{frame:04d}.exr, buffers.json
+                                  a clip in the project's clip contract (lightcrafter.clip): G-buffers of
+                                  the distinct frames only (``buffer_frames``), all cameras, manifest last
     rgb/{light}/{frame:04d}.exr   linear HDR RGB (scene-referred, no view transform)
     rgb/{light}.mp4               display preview (lightcrafter.io.linear_to_display, exposure 0 EV)
     rgb/{light}.json              manifest, written last
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lightcrafter import io
+from lightcrafter import clip, io
 from lightcrafter.blender import build
 
 BUFFER_SPP = 1
@@ -90,16 +90,6 @@ def layers_to_buffers(ch: dict[str, np.ndarray]) -> io.Buffers:
     )
 
 
-def _readable(path: Path, reader) -> bool:
-    if not path.is_file():
-        return False
-    try:
-        reader(path)
-        return True
-    except io.DataError:
-        return False
-
-
 # ----------------------------------------------------------------------------- Blender
 def render_layers() -> dict[str, np.ndarray]:
     """Render the current bpy scene once; return its passes as float32 (H, W) arrays keyed ``Pass.Channel``."""
@@ -122,15 +112,14 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
     traj = build.trajectory(spec, traj_id)
     serve = buffer_frame_of(spec, traj_id)
     distinct = sorted(set(serve))
-    files = {i: out_dir / "buffers" / f"{i:04d}.exr" for i in distinct}
     build.check_inputs(spec)
     inputs = {"what": "buffers", "spec": spec, "trajectory": traj_id, "spp": BUFFER_SPP,
               "filter_px": BUFFER_FILTER_WIDTH_PX}
-    io.claim_frame_dir(out_dir / "buffers", inputs)
-    todo = [i for i in distinct if not _readable(files[i], io.read_buffers)]
+    frames = clip.buffer_frames(out_dir, inputs)
+    todo = frames.missing(distinct, io.read_buffers)
     if todo:
         built = build.build_scene(spec, light_id=None)
-        io.stamp_frame_dir(out_dir / "buffers", inputs)
+        frames.stamp()
         build.configure_render(
             spec,
             samples=BUFFER_SPP,
@@ -142,24 +131,16 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
         )
         for i in todo:
             build.set_frame(built, traj["frames"][i])
-            io.write_buffers(files[i], layers_to_buffers(render_layers()))
+            io.write_buffers(frames.path(i), layers_to_buffers(render_layers()))
     K, c2w = cameras(spec, traj_id)
-    w, h = spec["resolution"]["width"], spec["resolution"]["height"]
-    io.write_cameras(out_dir / "cameras.json", w, h, K, c2w)
-    io.write_json(
-        out_dir / "buffers.json",
-        {
-            "format": "lightcrafter.buffers/1",
-            "scene_id": spec.get("scene_id"),
-            "trajectory": traj_id,
-            "width": w,
-            "height": h,
-            "num_frames": len(serve),
-            "buffer_frames": len(distinct),
-            "frames": [f"buffers/{j:04d}.exr" for j in serve],
-            "cameras": "cameras.json",
-            "render": {"engine": "cycles", "spp": BUFFER_SPP, "pixel_filter": f"box {BUFFER_FILTER_WIDTH_PX} px"},
-        },
+    clip.write_clip(
+        out_dir, serve=serve, K=K, c2w=c2w, width=spec["resolution"]["width"], height=spec["resolution"]["height"],
+        fps=float(spec.get("fps", 24)), camera_static=bool(traj.get("camera_static", False)),
+        scene_static=bool(traj.get("scene_static", True)), units="metres",
+        producer={"stage": "blender", "engine": "cycles", "spp": BUFFER_SPP,
+                  "pixel_filter": f"box {BUFFER_FILTER_WIDTH_PX} px"},
+        content_id=io.fingerprint(inputs),
+        extra={"scene_id": spec.get("scene_id"), "trajectory": traj_id, "motion": traj.get("motion")},
     )
     return len(todo)
 
@@ -182,15 +163,14 @@ def render_rgb(
     rcfg = spec.get("render", {})
     spp = int(spp or rcfg.get("spp", 16))
     n = int(spec["num_frames"])
-    files = [out_dir / "rgb" / light_id / f"{i:04d}.exr" for i in range(n)]
     build.check_inputs(spec, light_id)
     inputs = {"what": "rgb", "spec": spec, "trajectory": traj_id, "light": light_id, "spp": spp,
               "filter_px": RGB_FILTER_WIDTH_PX}
-    io.claim_frame_dir(out_dir / "rgb" / light_id, inputs)
-    todo = [i for i in range(n) if not _readable(files[i], io.read_rgb_exr)]
+    folder = clip.FrameFolder(out_dir / "rgb" / light_id, inputs)
+    todo = folder.missing(range(n), io.read_rgb_exr)
     if todo:
         built = build.build_scene(spec, light_id=light_id)
-        io.stamp_frame_dir(out_dir / "rgb" / light_id, inputs)
+        folder.stamp()
         build.configure_render(
             spec,
             samples=spp,
@@ -203,7 +183,8 @@ def render_rgb(
         for i in todo:
             build.set_frame(built, traj["frames"][i])
             ch = render_layers()
-            io.write_rgb_exr(files[i], np.stack([ch[f"Combined.{c}"] for c in "RGB"], axis=-1))
+            io.write_rgb_exr(folder.path(i), np.stack([ch[f"Combined.{c}"] for c in "RGB"], axis=-1))
+    files = [folder.path(i) for i in range(n)]
     frames = np.stack([io.read_rgb_exr(f) for f in files])
     io.write_video(
         out_dir / "rgb" / f"{light_id}.mp4", io.to_uint8(io.linear_to_display(frames)), fps=float(spec.get("fps", 24))

@@ -105,3 +105,75 @@ def lighting_from_spec(spec: dict, light_id: str, traj_id: str | None = None, *,
     points, areas = local_lights_from_spec(entry, where)
     return Lighting(env=env, rotation_z_rad=float(entry.get("rotation_z_rad", 0.0)),
                     frame_rotation_z_rad=frame_rot, point_lights=points, area_lights=areas)
+
+
+# ----------------------------------------------------------------------------- lighting files
+LIGHTING_FORMAT = "lightcrafter.lighting/1"
+
+
+def write_lighting_file(path, *, env: str | None, strength: float = 1.0, exposure_ev: float = 0.0,
+                        rotation_z_rad: float = 0.0, yaw_rad: float = 0.0, pitch_rad: float = 0.0,
+                        frame_rotation_z_rad: list[float] | None = None, point_lights: list[dict] | None = None,
+                        area_lights: list[dict] | None = None, extra: dict | None = None) -> dict:
+    """Write a lighting file (``lightcrafter.lighting/1``, JSON) that :func:`lighting_from_file` reads.
+
+    ``env`` is a lat-long EXR path (relative paths are relative to the file's folder), a
+    ``builtin:NAME.exr`` reference, or None (local lights only). Radiance = map x strength x 2**exposure_ev,
+    resampled once by yaw (about +Z) then pitch (about +Y), then rotated per frame about +Z by
+    rotation_z_rad + frame_rotation_z_rad[i] (radians, world frame; lightcrafter.envmap convention).
+    """
+    from lightcrafter.io import write_json
+
+    data = {
+        "format": LIGHTING_FORMAT,
+        "env": None if env is None else {"map": str(env), "strength": float(strength), "exposure_ev": float(exposure_ev),
+                                         "rotation_z_rad": float(rotation_z_rad), "yaw_rad": float(yaw_rad),
+                                         "pitch_rad": float(pitch_rad)},
+        "frame_rotation_z_rad": [float(x) for x in (frame_rotation_z_rad or [])],
+        "point_lights": list(point_lights or []), "area_lights": list(area_lights or []),
+        **(extra or {}),
+    }
+    write_json(path, data)
+    return data
+
+
+def lighting_from_file(path) -> Lighting:
+    """Build a :class:`Lighting` from a lighting file (see :func:`write_lighting_file`)."""
+    from pathlib import Path
+
+    from lightcrafter.io import read_json
+
+    path = Path(path)
+    data = read_json(path)
+    if data.get("format") != LIGHTING_FORMAT:
+        raise DataError(f"{path}: format {data.get('format')!r}, expected {LIGHTING_FORMAT!r}; rewrite the lighting file")
+    env = None
+    e = data.get("env")
+    rot = 0.0
+    if e:
+        from lightcrafter.lights import BUILTIN_PREFIX, resolve_hdri
+
+        ref = str(e["map"])
+        src = resolve_hdri(ref) if ref.startswith(BUILTIN_PREFIX) else (path.parent / ref if not Path(ref).is_absolute() else Path(ref))
+        if not Path(src).is_file():
+            raise DataError(f"{path}: environment map {src} not found; rerun the stage that writes it")
+        env = envmap.load(src)
+        env = envmap.rotate(env, float(e.get("yaw_rad", 0.0)), float(e.get("pitch_rad", 0.0)))
+        env = envmap.apply_exposure(env, float(e.get("exposure_ev", 0.0)), float(e.get("strength", 1.0)))
+        rot = float(e.get("rotation_z_rad", 0.0))
+    points, areas = local_lights_from_spec(data, str(path))
+    return Lighting(env=env, rotation_z_rad=rot, frame_rotation_z_rad=[float(x) for x in data.get("frame_rotation_z_rad", [])],
+                    point_lights=points, area_lights=areas)
+
+
+def lighting_identity(lighting: Lighting) -> dict:
+    """JSON-able identity of a lighting (the map as a digest): equal identity, equal renders."""
+    import hashlib
+    from dataclasses import asdict
+
+    env = None
+    if lighting.env is not None:
+        arr = np.ascontiguousarray(lighting.env, np.float32)
+        env = {"shape": list(arr.shape), "sha256": hashlib.sha256(arr.tobytes()).hexdigest()}
+    return {"env": env, "rotation_z_rad": lighting.rotation_z_rad, "frame_rotation_z_rad": lighting.frame_rotation_z_rad,
+            "point_lights": [asdict(p) for p in lighting.point_lights], "area_lights": [asdict(a) for a in lighting.area_lights]}

@@ -33,6 +33,7 @@ import mitsuba as mi
 import numpy as np
 
 from lightcrafter import envmap as envmod
+from lightcrafter.clip import FrameView  # noqa: F401  (re-exported: the renderer's per-frame input)
 from lightcrafter.io import Buffers
 from lightcrafter.proxy import material
 from lightcrafter.proxy.camera import sensor_from_opencv
@@ -78,21 +79,6 @@ class RenderStats:
     visibility_builds: int = 0
     local_light_rays: int = 0
     frames: int = 0
-
-
-@dataclass
-class FrameView:
-    """One frame's inputs: buffers, K (3x3 px, OpenCV), c2w (4x4), and a cache key naming the
-    buffer content (e.g. its file path); frames with equal key, K and c2w share meshes."""
-
-    buffers: Buffers
-    K: np.ndarray
-    c2w: np.ndarray
-    key: str
-
-    def cache_key(self) -> tuple:
-        return (self.key, np.asarray(self.K, np.float64).round(9).tobytes(),
-                np.asarray(self.c2w, np.float64).round(9).tobytes())
 
 
 @dataclass

@@ -30,7 +30,7 @@ rule render_proxy_gt:
         visibility=config["proxy"]["visibility"],
         rel_threshold=config["proxy"]["rel_threshold"],
     shell:
-        "python {params.script} --buffers {input.buffers} "
+        "python {params.script} --clip {input.buffers} "
         "--scene {input.scene} --traj {wildcards.traj} --light {wildcards.light} --out {params.out_dir} "
         "--spp {params.spp} --visibility {params.visibility} --rel-threshold {params.rel_threshold} "
         "--threads {threads} > {log} 2>&1"
