@@ -64,3 +64,28 @@ def resolve_hdri(ref: str) -> Path:
     if not path.is_file():
         raise DataError(f"{path}: HDRI file not found; fix the lighting's 'hdri' path or use builtin:NAME.exr")
     return path
+
+
+@functools.lru_cache(maxsize=64)
+def hdri_white_radiance(ref: str) -> float:
+    """Radiance (linear) that a white Lambertian ground plane (normal +Z) reflects under the HDRI at
+    strength 1: the cosine-weighted upper-hemisphere irradiance E divided by pi, with E integrated over
+    the lat-long map's pixels (solid angle sin(theta) dtheta dphi; lightcrafter.envmap convention).
+
+    Scene sampling divides light strengths by it, so every lighting gives the ground the same
+    exposure (``scenes.white_radiance``) up to the sampled strength factor: without it the bundled
+    HDRIs span 14x in brightness (night 0.16 to city 2.19) and bright ones clip the display range.
+    """
+    import numpy as np
+
+    from lightcrafter import envmap
+
+    env = envmap.load(resolve_hdri(ref))
+    h, w = env.shape[:2]
+    cos_up = np.clip(envmap.pixel_directions(h, w)[..., 2], 0.0, None)
+    solid_angle = (np.pi / h) * (2 * np.pi / w) * np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
+    luminance = env @ np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / linear sRGB luminance weights
+    e_over_pi = float((luminance * cos_up * solid_angle).sum() / np.pi)
+    if not e_over_pi > 0:
+        raise DataError(f"{ref}: the HDRI's upper hemisphere is black; it cannot light a scene, remove it")
+    return e_over_pi

@@ -87,6 +87,8 @@ def plan_scene(scfg: dict, seed: int, index: int) -> dict:
     "elevation_group", "quadrant", "oscillating", "camera_static", "scene_static",
     "light_rotating", "source_light", "target_lights", "render_lights", "buffer_frames"}]}``.
     Motion configs cycle over ``scenes.motions`` across (scene, trajectory) so they stay balanced.
+    Scenes of split ``recon`` (training data of the reconstruction stack) get no target lightings:
+    only their source video and buffers are rendered.
     """
     rng = _rng(seed, index, 1)
     n_light = int(scfg["lightings_per_scene"])
@@ -98,12 +100,15 @@ def plan_scene(scfg: dict, seed: int, index: int) -> dict:
     motions = list(scfg["motions"])
     lights = [f"L{k}" for k in range(n_light)]
     n_traj = int(scfg["trajectories_per_scene"])
+    split = split_of(scfg, seed, index)
     trajs = []
     for t in range(n_traj):
         motion = motions[(index * n_traj + t) % len(motions)]
         src = int(rng.integers(n_light))
         others = [k for k in range(n_light) if k != src]
         tgts = sorted(int(k) for k in rng.choice(others, size=n_targets, replace=False))
+        if split == "recon":  # reconstruction-stack training data: buffers + the source video only
+            tgts = []
         camera_static = motion == "static_rotating_light"
         scene_static = motion != "dynamic_moving"
         trajs.append({
@@ -120,8 +125,7 @@ def plan_scene(scfg: dict, seed: int, index: int) -> dict:
             "render_lights": sorted({lights[src], *(lights[k] for k in tgts)}),
             "buffer_frames": 1 if (camera_static and scene_static) else int(scfg["num_frames"]),
         })
-    return {"scene_id": f"s{index:04d}", "split": split_of(scfg, seed, index),
-            "lighting_ids": lights, "trajectories": trajs}
+    return {"scene_id": f"s{index:04d}", "split": split, "lighting_ids": lights, "trajectories": trajs}
 
 
 # ----------------------------------------------------------------------------- content
@@ -233,12 +237,19 @@ def _ground_material(rng, scfg):
                               "point it at a folder of PBR texture sets or set it to null")
         return {"type": "texture_set", "dir": str(sets[int(rng.integers(len(sets)))]),
                 "scale_m": round(float(rng.uniform(0.5, 2.0)), 4)}
+    # Two colours of clearly different brightness (b is 2.5-5x darker than a, hue jittered), at a
+    # pattern scale whose features span a few pixels to a few tens of pixels at the cameras'
+    # distances: texture that a structure-from-motion front end can track, as scanned ground
+    # textures give in the paper's scenes.
+    lo_s, hi_s = scfg.get("ground_pattern_scale_range", [2.0, 10.0])
+    color_a = rng.uniform(0.35, 0.85, 3)
+    color_b = color_a / rng.uniform(2.5, 5.0) * rng.uniform(0.7, 1.3, 3)
     return {
         "type": "procedural",
         "pattern": GROUND_PATTERNS[int(rng.integers(len(GROUND_PATTERNS)))],
-        "color_a": np.round(rng.uniform(0.05, 0.8, 3), 4).tolist(),
-        "color_b": np.round(rng.uniform(0.05, 0.8, 3), 4).tolist(),
-        "scale": round(float(rng.uniform(2.0, 10.0)), 4),
+        "color_a": np.round(color_a, 4).tolist(),
+        "color_b": np.round(np.clip(color_b, 0.02, 0.85), 4).tolist(),
+        "scale": round(float(rng.uniform(lo_s, hi_s)), 4),
         "roughness": round(float(rng.uniform(0.3, 0.95)), 4),
         "metallic": 0.0,
     }
@@ -320,10 +331,16 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
 
     lightings = []
     pool_idx = rng.permutation(len(hdris))
+    white = scfg.get("white_radiance")
     for k, lid in enumerate(plan["lighting_ids"]):
-        lightings.append({"id": lid, "hdri": hdris[int(pool_idx[k % len(hdris)])],
-                          "rotation_z_rad": round(float(rng.uniform(0, 2 * math.pi)), 6),
-                          "strength": round(float(rng.uniform(*scfg["light_strength_range"])), 4)})
+        ref = hdris[int(pool_idx[k % len(hdris)])]
+        strength = float(rng.uniform(*scfg["light_strength_range"]))
+        if white:  # exposure-normalised: a white ground would reflect `white` x strength
+            from .lights import hdri_white_radiance
+
+            strength *= float(white) / hdri_white_radiance(ref)
+        lightings.append({"id": lid, "hdri": ref, "rotation_z_rad": round(float(rng.uniform(0, 2 * math.pi)), 6),
+                          "strength": round(strength, 4)})
 
     width, height = int(scfg["width"]), int(scfg["height"])
     fov_x = math.radians(float(scfg["fov_x_deg"]))
@@ -349,7 +366,9 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
         "fps": int(scfg["fps"]),
         "camera": {"fov_x_rad": round(fov_x, 9)},
         "render": {"spp": int(render_cfg["spp"]), "seed": int(render_cfg["seed"]),
-                   "max_bounces": int(render_cfg["max_bounces"])},
+                   "max_bounces": int(render_cfg["max_bounces"]),
+                   "denoiser": str(render_cfg.get("denoiser", "none")),
+                   "clamp_indirect": float(render_cfg.get("clamp_indirect", 0.0))},
         "ground": {"size_m": float(scfg["ground_size_m"]), "material": _ground_material(rng, scfg)},
         "objects": objects,
         "lightings": lightings,

@@ -21,7 +21,8 @@ Sampling choices
   sample per pixel) and the OpenCV pixel-centre convention of ``K``. Textures are point-sampled
   (aliased, as any G-buffer). Light bounces are 0: only first-hit passes are needed.
 * RGB: ``spec.render.spp`` samples, Cycles' default Blackman-Harris filter (1.5 px), ``max_bounces``
-  from the spec, fixed seed, no denoiser (see benchmarks/cycles_spp.py for the spp choice).
+  from the spec, fixed seed, ``spec.render.denoiser`` (none | oidn) and ``clamp_indirect`` (see
+  benchmarks/cycles_spp.py for the choice of all three).
 """
 
 from __future__ import annotations
@@ -164,6 +165,8 @@ def render_rgb(
     spp = int(spp or rcfg.get("spp", 16))
     n = int(spec["num_frames"])
     build.check_inputs(spec, light_id)
+    denoiser = rcfg.get("denoiser", "none")
+    clamp_indirect = float(rcfg.get("clamp_indirect", 0.0))
     inputs = {"what": "rgb", "spec": spec, "trajectory": traj_id, "light": light_id, "spp": spp,
               "filter_px": RGB_FILTER_WIDTH_PX}
     folder = clip.FrameFolder(out_dir / "rgb" / light_id, inputs)
@@ -179,6 +182,8 @@ def render_rgb(
             film_transparent=False,
             buffers=False,
             threads=threads,
+            denoiser=denoiser,
+            clamp_indirect=clamp_indirect,
         )
         for i in todo:
             build.set_frame(built, traj["frames"][i])
@@ -209,7 +214,8 @@ def render_rgb(
                 "max_bounces": int(rcfg.get("max_bounces", 4)),
                 "seed": int(rcfg.get("seed", 0)),
                 "pixel_filter": f"blackman-harris {RGB_FILTER_WIDTH_PX} px",
-                "denoiser": None,
+                "denoiser": denoiser,
+                "clamp_indirect": clamp_indirect,
             },
         },
     )
