@@ -141,8 +141,9 @@ class MetricResult:
         return self.value is not None
 
     def to_dict(self) -> dict:
+        """JSON-ready: non-finite per-item values (a transition with no kept pixel) become None."""
         return {"name": self.name, "value": self.value, "status": self.status,
-                "per_item": list(self.per_item), "info": dict(self.info)}
+                "per_item": [float(x) if np.isfinite(x) else None for x in self.per_item], "info": dict(self.info)}
 
     @staticmethod
     def not_computed(name: str, reason: str, **info) -> "MetricResult":
@@ -384,7 +385,8 @@ def warp_ssim(method, reference=None, flows: VideoFlows | None = None, mask_occl
         curve.append(float(s[keep].mean()) if n else float("nan"))
     value = _finite_mean(curve)
     info = {"flow": f"cv2 DIS preset {flows.preset}", "flow_source": flow_source, "alpha": flows.alpha,
-            "beta": flows.beta, "occlusions_masked": mask_occlusions, "warp": "cv2.remap bilinear",
+            "beta": flows.beta, "motion_boundary": [MOTION_BOUNDARY_ALPHA, MOTION_BOUNDARY_BETA],
+            "occlusions_masked": mask_occlusions, "warp": "cv2.remap bilinear",
             "ssim": SSIM_SETTINGS, "valid_fraction": [round(f, 6) for f in frac]}
     if value is None:
         return MetricResult.not_computed("warp_ssim", "no unoccluded pixel in any transition", **info)

@@ -136,6 +136,8 @@ def test_warp_ssim_rigid_translation_is_one_and_penalises_flicker_and_shuffling(
     assert perfect.computed and perfect.value > 0.999
     assert len(perfect.per_item) == 7 and len(perfect.info["valid_fraction"]) == 7
     assert perfect.info["flow_source"] == "target"
+    d = perfect.to_dict()
+    assert d["value"] == perfect.value and len(d["per_item"]) == 7 and d["status"] == "computed"
 
     gains = np.where(np.arange(8) % 2 == 0, 1.0, 0.6)[:, None, None, None]
     flicker = ev.warp_ssim(target * gains, target)
