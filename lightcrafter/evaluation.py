@@ -1,0 +1,685 @@
+"""Evaluation metrics of the paper and their aggregation (one module; scripts only call it).
+
+Inputs
+------
+Every metric works on DISPLAY videos: float arrays shaped (N, H, W, 3) with values in [0, 1],
+obtained from linear radiance only through :func:`lightcrafter.io.linear_to_display` with the same
+exposure for the method and the target. A video outside [0, 1] (tolerance 1e-6) or with a shape that
+differs from its reference raises ``ValueError``.
+
+Metrics
+-------
+Reference metrics, frame-wise against the ground-truth (target) video, then the mean over frames
+gives one value per clip:
+
+* **PSNR** (dB, higher is better): ``skimage.metrics.peak_signal_noise_ratio`` with data_range 1
+  on all three channels, 10 log10(1 / MSE). Identical frames give +inf; each frame's value is
+  capped at :data:`PSNR_CAP_DB` = 100 dB before the mean so means stay finite.
+* **SSIM** (higher is better): ``skimage.metrics.structural_similarity`` with the settings of
+  Wang et al. 2004 (:data:`SSIM_SETTINGS`): Gaussian window sigma = 1.5 px truncated at 3.5 sigma
+  (11 taps), population (not sample) covariance, K1 = 0.01, K2 = 0.03, data_range 1, computed per
+  channel (``channel_axis``) and averaged over channels; the 5-px border where the window leaves
+  the image is excluded from the mean (scikit-image's convention), borders filtered in 'reflect'.
+* **LPIPS** (lower is better): the ``lpips`` package (Zhang et al. 2018, v0.1 linear layers shipped
+  in the package, AlexNet backbone by default) on frames scaled to [-1, 1], per frame, then the mean.
+  The backbone weights come only from a configured local folder (never downloaded); see
+  :func:`lpips_video` for what to install and where to put the file. Where ``lpips`` cannot run the
+  result is marked "not computed: <reason>" and carries no value.
+
+Temporal metrics, one value per transition t -> t+1, then the mean over transitions:
+
+* **Warp-SSIM** (higher is better; structural consistency after optical-flow warping). Optical flow
+  is computed on a REFERENCE video (the target for synthetic pairs, the original input video for
+  real clips without a target; :func:`warp_ssim_self` uses the method's own video) with OpenCV's DIS
+  optical flow, preset MEDIUM (:data:`FLOW_PRESET`; 8-bit luma, BT.601 weights), forward
+  f: t -> t+1 and backward b: t+1 -> t. A pixel x of frame t is kept when x + f(x) lies inside the
+  image and passes the forward-backward consistency check of Sundaram et al. 2010,
+  |f(x) + b(x + f(x))|^2 < alpha (|f(x)|^2 + |b(x + f(x))|^2) + beta, alpha = 0.01, beta = 0.5 px^2
+  (:data:`OCCLUSION_ALPHA`, :data:`OCCLUSION_BETA`). The METHOD's frame t+1 is warped back to t,
+  warped(x) = method[t+1](x + f(x)) (``cv2.remap``, bilinear), and the SSIM map (settings above,
+  ``full=True``, averaged over channels) between warped and method[t] is averaged over the kept
+  pixels (the 5-px image border excluded as for SSIM). A pixel on a motion boundary
+  (|grad f_x|^2 + |grad f_y|^2 > 0.01 |f|^2 + 0.002, the second test of Sundaram et al.) is dropped
+  too: DIS smears a moving object's motion a few pixels onto the background it covers, where the
+  forward and backward flows then agree. Even so about a third of such a covered band survives (a
+  32-px square moving 6 px/frame over a textured background: a perfect method scores 0.984 masked,
+  0.947 unmasked), and SSIM windows next to a kept/dropped boundary still see a few dropped
+  pixels. The per-transition curve and the kept fraction per transition are returned with the mean.
+* **T-CLIP** (higher is better; temporal smoothness): cosine similarity of CLIP image embeddings
+  of adjacent frames, mean over transitions (``pairs="all"`` gives the all-pairs mean some papers
+  report as "CLIP frame consistency"). Embeddings come from a LOCAL Hugging Face ``transformers``
+  CLIP folder (``config.json``, weights, ``preprocessor_config.json``; e.g. a saved
+  ``openai/clip-vit-base-patch32``), frames passed as 8-bit images through the folder's
+  ``CLIPImageProcessorPil`` (resize shortest side, centre crop, CLIP normalisation) and
+  ``vision_model`` + ``visual_projection``. Nothing is downloaded: with no folder configured, or a
+  path that does not exist, the result is "not computed: no CLIP weights at <path>".
+
+Which video the flow comes from. The paper takes Warp-SSIM "from Light-X"; the public Light-X
+repository holds no evaluation code, so its exact protocol could not be checked. The closest public
+implementation (TC-Light's ``evaluate.py``, a relighting paper reporting "Warp SSIM") computes RAFT
+flow on the source/ground-truth video, not on the method's output, masks occlusions with a
+forward-backward check (norms, alpha = beta = 0.5) and then scores SSIM over the whole frame with
+occluded pixels zeroed in both images. Here the flow comes from the reference video as well (so a
+method cannot score well by producing a static or blurry video whose own flow is trivial), but
+occluded pixels are excluded from the average instead of being counted as perfect matches, and DIS
+replaces RAFT (no network weights). Numbers are therefore comparable between our methods, not to
+the digit with published tables.
+
+Aggregation
+-----------
+Per clip: the mean over frames (or transitions). The paper averages "across frames, illuminations,
+and scenes": :func:`paper_average` takes the mean over clips of one (scene, lighting), then over
+the lightings of a scene, then over scenes, so unequal clip counts do not reweight scenes;
+:func:`group_table` gives the per-lighting / per-scene tables. Uncertainty: :func:`bootstrap_ci`
+(percentile bootstrap of the mean over clips) and :func:`paired_bootstrap_ci` (of the mean of
+per-clip differences between two methods on the same clips), :data:`BOOTSTRAP_RESAMPLES` = 10 000
+resamples, seed 0, 95 %.
+
+Run time (benchmarks/evaluation_cost.py on synthetic clips, 2-core CPU; CPU seconds of the process,
+the machine was shared so wall times were ~2.5x these): a 49-frame 720x480 clip costs PSNR 0.9 s,
+SSIM 8.1 s, Warp-SSIM 11.6 s (DIS flows of the target 5.5 s, reusable across methods, + scoring
+6.0 s), T-CLIP with a ViT-B/32-size CLIP 13.7 s; a 17-frame 128x96 clip PSNR 0.002 s, SSIM 0.08 s,
+Warp-SSIM 0.19 s, T-CLIP 4.0 s (the CLIP input is always 224 px). LPIPS (AlexNet) cannot run on
+this machine; with the real ``lpips`` 0.1.4 code and an architecture-identical stand-in backbone in a
+throwaway environment it cost 19.9 s and 0.47 s of CPU for the two clips.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+
+PSNR_CAP_DB = 100.0
+
+#: scikit-image SSIM settings (Wang et al. 2004): Gaussian 11-tap window, sigma 1.5, population covariance.
+SSIM_SETTINGS = dict(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, K1=0.01, K2=0.03, data_range=1.0)
+#: Half-width (px) of the SSIM window, int(3.5 * sigma + 0.5): the border excluded from SSIM means.
+SSIM_BORDER_PX = int(3.5 * SSIM_SETTINGS["sigma"] + 0.5)
+
+#: OpenCV DIS optical flow preset used for Warp-SSIM (MEDIUM: ~0.01 px mean error on a textured
+#: 720x480 translation, ~70 ms per flow on this machine; FAST/ULTRAFAST err ~0.06 px).
+FLOW_PRESET = "MEDIUM"
+#: Forward-backward consistency thresholds (Sundaram, Brox & Keutzer, ECCV 2010).
+OCCLUSION_ALPHA = 0.01
+OCCLUSION_BETA = 0.5
+#: Motion-boundary test of the same paper: |grad u|^2 + |grad v|^2 > 0.01 |w|^2 + 0.002 is unreliable.
+MOTION_BOUNDARY_ALPHA = 0.01
+MOTION_BOUNDARY_BETA = 0.002
+
+BOOTSTRAP_RESAMPLES = 10_000
+BOOTSTRAP_SEED = 0
+BOOTSTRAP_CONFIDENCE = 0.95
+
+#: torchvision checkpoint file of each LPIPS backbone (the torch hub cache name).
+LPIPS_BACKBONE_FILES = {"alex": "alexnet-owt-7be5be79.pth", "vgg": "vgg16-397923af.pth",
+                        "squeeze": "squeezenet1_1-b8a52dc0.pth"}
+LPIPS_INSTALL = "pip install torchvision==0.28.0 lpips==0.1.4 (beside the CUDA build of torch==2.13.0)"
+
+
+# ----------------------------------------------------------------------------- result type
+@dataclass(frozen=True)
+class MetricResult:
+    """One metric on one clip.
+
+    ``value`` is the clip score (None when not computed), ``per_item`` the per-frame values (PSNR,
+    SSIM, LPIPS) or per-transition values (Warp-SSIM, T-CLIP), ``status`` "computed" or
+    "not computed: <reason>", ``info`` the settings used (library, preset, thresholds, weights).
+    """
+
+    name: str
+    value: float | None
+    per_item: tuple[float, ...] = ()
+    status: str = "computed"
+    info: dict = field(default_factory=dict)
+
+    @property
+    def computed(self) -> bool:
+        return self.value is not None
+
+    def to_dict(self) -> dict:
+        """JSON-ready: non-finite per-item values (a transition with no kept pixel) become None."""
+        return {"name": self.name, "value": self.value, "status": self.status,
+                "per_item": [float(x) if np.isfinite(x) else None for x in self.per_item], "info": dict(self.info)}
+
+    @staticmethod
+    def not_computed(name: str, reason: str, **info) -> "MetricResult":
+        return MetricResult(name, None, (), f"not computed: {reason}", dict(info))
+
+
+def _finite_mean(values: Sequence[float]) -> float | None:
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else None
+
+
+# ----------------------------------------------------------------------------- input checks
+def _as_display_video(video, name: str) -> np.ndarray:
+    """The video as a float array (float32 stays float32: no whole-video copy), checked to be
+    (N, H, W, 3) with finite values in [0, 1] (tolerance 1e-6)."""
+    v = np.asarray(video)
+    if v.ndim != 4 or v.shape[-1] != 3:
+        raise ValueError(f"{name}: expected a display video shaped (N, H, W, 3), got {v.shape}")
+    if not np.issubdtype(v.dtype, np.floating):
+        raise ValueError(f"{name}: expected float display values in [0, 1], got dtype {v.dtype}")
+    if v.size and (not np.isfinite(v).all() or v.min() < -1e-6 or v.max() > 1 + 1e-6):
+        raise ValueError(f"{name}: display values must be finite and in [0, 1]; "
+                         "convert linear frames with lightcrafter.io.linear_to_display")
+    return v
+
+
+def _pair(method, target) -> tuple[np.ndarray, np.ndarray]:
+    m, t = _as_display_video(method, "method video"), _as_display_video(target, "target video")
+    if m.shape != t.shape:
+        raise ValueError(f"method video {m.shape} and target video {t.shape} differ in shape")
+    return m, t
+
+
+# ----------------------------------------------------------------------------- PSNR / SSIM
+def psnr_db(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR in dB (peak 1) of two display images of equal shape; +inf when identical."""
+    from skimage.metrics import peak_signal_noise_ratio
+
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"psnr: shapes differ {a.shape} vs {b.shape}")
+    with np.errstate(divide="ignore"):  # identical images: MSE 0 -> +inf
+        return float(peak_signal_noise_ratio(a, b, data_range=1.0))
+
+
+def ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """SSIM (:data:`SSIM_SETTINGS`) of two (H, W, C) or (H, W) display images in [0, 1]."""
+    from skimage.metrics import structural_similarity
+
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"ssim: shapes differ {a.shape} vs {b.shape}")
+    return float(structural_similarity(a, b, channel_axis=-1 if a.ndim == 3 else None, **SSIM_SETTINGS))
+
+
+def ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(H, W) SSIM map (:data:`SSIM_SETTINGS`, full=True) averaged over channels; its border of
+    :data:`SSIM_BORDER_PX` px is what :func:`ssim` leaves out of its mean."""
+    from skimage.metrics import structural_similarity
+
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"ssim: shapes differ {a.shape} vs {b.shape}")
+    _, s = structural_similarity(a, b, channel_axis=-1 if a.ndim == 3 else None, full=True, **SSIM_SETTINGS)
+    return s.mean(axis=-1) if a.ndim == 3 else s
+
+
+def framewise_psnr(method, target) -> MetricResult:
+    """Per-frame PSNR (dB, each capped at :data:`PSNR_CAP_DB`) and their mean."""
+    m, t = _pair(method, target)
+    vals = tuple(min(psnr_db(x, y), PSNR_CAP_DB) for x, y in zip(m, t))
+    return MetricResult("psnr_db", _finite_mean(vals), vals,
+                        info={"library": "skimage.metrics.peak_signal_noise_ratio", "data_range": 1.0,
+                              "cap_db": PSNR_CAP_DB, "values": "display [0, 1]"})
+
+
+def framewise_ssim(method, target) -> MetricResult:
+    """Per-frame SSIM (:data:`SSIM_SETTINGS`) and their mean."""
+    m, t = _pair(method, target)
+    vals = tuple(ssim(x, y) for x, y in zip(m, t))
+    return MetricResult("ssim", _finite_mean(vals), vals,
+                        info={"library": "skimage.metrics.structural_similarity", **SSIM_SETTINGS,
+                              "values": "display [0, 1]"})
+
+
+def video_psnr_db(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean over frames of per-frame PSNR (dB), each capped at :data:`PSNR_CAP_DB`."""
+    return float(np.mean([min(psnr_db(x, y), PSNR_CAP_DB) for x, y in zip(a, b)]))
+
+
+def video_ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean over frames of per-frame SSIM."""
+    return float(np.mean([ssim(x, y) for x, y in zip(a, b)]))
+
+
+def display_psnr_db(linear: np.ndarray, linear_ref: np.ndarray, exposure_ev: float = 0.0) -> float:
+    """PSNR (dB, peak 1) of two LINEAR images after the shared display transform (io.linear_to_display)."""
+    from .io import linear_to_display
+
+    return psnr_db(linear_to_display(linear, exposure_ev), linear_to_display(linear_ref, exposure_ev))
+
+
+def temporal_difference(video: np.ndarray) -> np.ndarray:
+    """(N-1,) mean |frame[i+1] - frame[i]| for a (N, H, W, C) video."""
+    v = np.asarray(video, np.float64)
+    return np.abs(np.diff(v, axis=0)).reshape(len(v) - 1, -1).mean(axis=1)
+
+
+# ----------------------------------------------------------------------------- optical flow
+def _luma_u8(frame: np.ndarray) -> np.ndarray:
+    import cv2
+
+    g = cv2.cvtColor(np.asarray(frame, np.float32), cv2.COLOR_RGB2GRAY)
+    return np.clip(np.round(g * 255.0), 0, 255).astype(np.uint8)
+
+
+def _dis(preset: str):
+    import cv2
+
+    try:
+        code = getattr(cv2, f"DISOPTICAL_FLOW_PRESET_{preset.upper()}")
+    except AttributeError:
+        raise ValueError(f"unknown DIS preset {preset!r}; use ULTRAFAST, FAST or MEDIUM") from None
+    return cv2.DISOpticalFlow_create(code)
+
+
+def dis_flow(frame_a: np.ndarray, frame_b: np.ndarray, preset: str = FLOW_PRESET) -> np.ndarray:
+    """(H, W, 2) float32 flow (dx, dy) in pixels from display frame a to b: a(x) ~ b(x + flow(x))."""
+    return _dis(preset).calc(_luma_u8(frame_a), _luma_u8(frame_b), None)
+
+
+def warp_backward(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """Sample ``image`` at x + flow(x) (cv2.remap, bilinear, border replicated): brings frame t+1
+    back onto frame t with the forward flow t -> t+1."""
+    import cv2
+
+    h, w = flow.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return cv2.remap(np.asarray(image, np.float32), gx + flow[..., 0], gy + flow[..., 1],
+                     interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def consistency_mask(fwd: np.ndarray, bwd: np.ndarray, alpha: float = OCCLUSION_ALPHA,
+                     beta: float = OCCLUSION_BETA, boundary_alpha: float = MOTION_BOUNDARY_ALPHA,
+                     boundary_beta: float = MOTION_BOUNDARY_BETA) -> np.ndarray:
+    """(H, W) bool: pixels of frame t with a reliable match in t+1 (Sundaram et al. 2010):
+
+    * x + f(x) inside the image;
+    * forward-backward consistent: |f + b(x+f)|^2 < alpha (|f|^2 + |b(x+f)|^2) + beta;
+    * not on a motion boundary: |grad f_x|^2 + |grad f_y|^2 <= boundary_alpha |f|^2 + boundary_beta
+      (a local flow such as DIS smears a moving object's motion a few pixels onto the background it
+      covers, where forward and backward flows then agree; this test removes that band).
+    """
+    b_at = warp_backward(bwd, fwd)
+    err = np.sum((fwd + b_at) ** 2, axis=-1)
+    mag = np.sum(fwd**2, axis=-1)
+    consistent = err < alpha * (mag + np.sum(b_at**2, axis=-1)) + beta
+    gy_u, gx_u = np.gradient(fwd[..., 0])
+    gy_v, gx_v = np.gradient(fwd[..., 1])
+    smooth = gx_u**2 + gy_u**2 + gx_v**2 + gy_v**2 <= boundary_alpha * mag + boundary_beta
+    return _inside(fwd) & consistent & smooth
+
+
+def _inside(fwd: np.ndarray) -> np.ndarray:
+    """(H, W) bool: x + fwd(x) lies inside the image (pixel centres at integer coordinates)."""
+    h, w = fwd.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w), np.arange(h))
+    tx, ty = gx + fwd[..., 0], gy + fwd[..., 1]
+    return (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)
+
+
+@dataclass(frozen=True)
+class VideoFlows:
+    """Forward flows and consistency masks of one reference video, reusable across methods.
+
+    ``forward[t]``: (H, W, 2) flow t -> t+1; ``valid[t]``: (H, W) bool mask of :func:`consistency_mask`.
+    """
+
+    forward: tuple[np.ndarray, ...]
+    valid: tuple[np.ndarray, ...]
+    preset: str
+    alpha: float
+    beta: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.forward[0].shape[:2] if self.forward else (0, 0)
+
+
+def compute_flows(video, preset: str = FLOW_PRESET, alpha: float = OCCLUSION_ALPHA,
+                  beta: float = OCCLUSION_BETA) -> VideoFlows:
+    """DIS forward/backward flow between adjacent frames of a display video and occlusion masks."""
+    v = _as_display_video(video, "flow reference video")
+    dis = _dis(preset)
+    luma = [_luma_u8(f) for f in v]
+    fwd, valid = [], []
+    for t in range(len(v) - 1):
+        f = dis.calc(luma[t], luma[t + 1], None)
+        b = dis.calc(luma[t + 1], luma[t], None)
+        fwd.append(f)
+        valid.append(consistency_mask(f, b, alpha, beta))
+    return VideoFlows(tuple(fwd), tuple(valid), preset, alpha, beta)
+
+
+def warp_ssim(method, reference=None, flows: VideoFlows | None = None, mask_occlusions: bool = True,
+              flow_source: str = "target") -> MetricResult:
+    """Warp-SSIM of ``method`` with flow from ``reference`` (or precomputed ``flows`` of it).
+
+    Per transition t: SSIM map between method[t] and method[t+1] warped back by the reference's
+    forward flow, averaged over unoccluded pixels (``mask_occlusions=False`` averages over all
+    pixels inside the image, for diagnosis only). ``per_item`` is the per-transition curve;
+    ``info['valid_fraction']`` the kept fraction of the interior per transition.
+    """
+    m = _as_display_video(method, "method video")
+    if len(m) < 2:
+        return MetricResult.not_computed("warp_ssim", f"needs at least 2 frames, got {len(m)}")
+    if flows is None:
+        if reference is None:
+            raise ValueError("warp_ssim: give the reference video (target or original input) or its flows")
+        r = _as_display_video(reference, "flow reference video")
+        if r.shape != m.shape:
+            raise ValueError(f"method video {m.shape} and flow reference video {r.shape} differ in shape")
+        flows = compute_flows(r)
+    if len(flows.forward) != len(m) - 1 or flows.shape != m.shape[1:3]:
+        raise ValueError(f"flows cover {len(flows.forward)} transitions of {flows.shape}, "
+                         f"method video has {len(m) - 1} of {m.shape[1:3]}")
+    h, w = m.shape[1:3]
+    interior = np.zeros((h, w), bool)
+    p = SSIM_BORDER_PX
+    interior[p:h - p, p:w - p] = True
+    curve, frac = [], []
+    for t in range(len(m) - 1):
+        warped = warp_backward(m[t + 1], flows.forward[t])
+        s = ssim_map(warped, m[t])
+        keep = interior & (flows.valid[t] if mask_occlusions else _inside(flows.forward[t]))
+        n = int(keep.sum())
+        frac.append(n / max(int(interior.sum()), 1))
+        curve.append(float(s[keep].mean()) if n else float("nan"))
+    value = _finite_mean(curve)
+    info = {"flow": f"cv2 DIS preset {flows.preset}", "flow_source": flow_source, "alpha": flows.alpha,
+            "beta": flows.beta, "motion_boundary": [MOTION_BOUNDARY_ALPHA, MOTION_BOUNDARY_BETA],
+            "occlusions_masked": mask_occlusions, "warp": "cv2.remap bilinear",
+            "ssim": SSIM_SETTINGS, "valid_fraction": [round(f, 6) for f in frac]}
+    if value is None:
+        return MetricResult.not_computed("warp_ssim", "no unoccluded pixel in any transition", **info)
+    return MetricResult("warp_ssim", value, tuple(curve), info=info)
+
+
+def warp_ssim_self(method, mask_occlusions: bool = True) -> MetricResult:
+    """Warp-SSIM with flow computed on the method's own video (for clips with no reference).
+
+    Weaker than :func:`warp_ssim` with a reference: a blurry or frozen output has an easy flow of
+    its own. Use it only where no target or input video exists.
+    """
+    return warp_ssim(method, reference=method, mask_occlusions=mask_occlusions, flow_source="self")
+
+
+
+# ----------------------------------------------------------------------------- T-CLIP
+class ClipImageEmbedder:
+    """CLIP image embeddings from a local ``transformers`` CLIP folder (nothing is downloaded)."""
+
+    def __init__(self, model, processor, source: str, batch_size: int = 16):
+        self.model, self.processor, self.source, self.batch_size = model.eval(), processor, source, batch_size
+
+    @classmethod
+    def from_folder(cls, folder: str | Path, batch_size: int = 16) -> "ClipImageEmbedder":
+        """Load ``CLIPModel`` and ``CLIPImageProcessorPil`` with local_files_only; raises
+        :class:`lightcrafter.io.DataError` naming the folder when it exists but cannot be loaded."""
+        from transformers import CLIPImageProcessorPil, CLIPModel
+
+        from .io import DataError
+
+        folder = Path(folder)
+        if not (folder / "preprocessor_config.json").is_file():
+            raise DataError(f"{folder}: no preprocessor_config.json; save the CLIP folder with its image "
+                            "processor (CLIPProcessor.save_pretrained) next to the model")
+        try:
+            model = CLIPModel.from_pretrained(folder, local_files_only=True)
+            proc = CLIPImageProcessorPil.from_pretrained(folder, local_files_only=True)
+        except (OSError, ValueError) as exc:
+            raise DataError(f"{folder}: not a loadable transformers CLIP folder ({exc}); "
+                            "point evaluation.clip_weights at a CLIPModel.save_pretrained folder") from exc
+        return cls(model, proc, str(folder), batch_size)
+
+    def embed(self, video) -> np.ndarray:
+        """(N, D) float64 unit-norm image embeddings of a display video (frames sent as 8-bit)."""
+        import torch
+
+        from .io import to_uint8
+
+        frames = to_uint8(_as_display_video(video, "video"))
+        out = []
+        with torch.no_grad():
+            for i in range(0, len(frames), self.batch_size):
+                px = self.processor(images=list(frames[i:i + self.batch_size]), return_tensors="pt")["pixel_values"]
+                pooled = self.model.vision_model(pixel_values=px).pooler_output
+                out.append(self.model.visual_projection(pooled).double().numpy())
+        e = np.concatenate(out, axis=0)
+        return e / np.linalg.norm(e, axis=1, keepdims=True)
+
+
+@functools.lru_cache(maxsize=2)
+def _cached_embedder(folder: str) -> ClipImageEmbedder:
+    return ClipImageEmbedder.from_folder(folder)
+
+
+def load_clip_embedder(clip_weights: str | Path | None) -> ClipImageEmbedder | str:
+    """An embedder for ``clip_weights``, or the "not computed" reason string when there is none."""
+    if not clip_weights:
+        return "no CLIP weights configured (evaluation.clip_weights is empty); nothing is downloaded"
+    folder = Path(clip_weights)
+    if not folder.is_dir():
+        return f"no CLIP weights at {folder}"
+    try:
+        import transformers  # noqa: F401
+    except ImportError as exc:
+        return f"transformers cannot be imported ({exc}); pip install transformers==5.23.0"
+    return _cached_embedder(str(folder.resolve()))
+
+
+def t_clip(video, clip_weights: str | Path | None = None, embedder: ClipImageEmbedder | None = None,
+           pairs: str = "adjacent") -> MetricResult:
+    """T-CLIP: mean cosine similarity of CLIP image embeddings of adjacent frames.
+
+    ``per_item`` holds the per-transition similarities; ``pairs="all"`` averages over all frame
+    pairs instead (the curve stays the adjacent one).
+    """
+    if pairs not in ("adjacent", "all"):
+        raise ValueError(f"t_clip: pairs must be 'adjacent' or 'all', got {pairs!r}")
+    v = _as_display_video(video, "video")
+    if embedder is None:
+        loaded = load_clip_embedder(clip_weights)
+        if isinstance(loaded, str):
+            return MetricResult.not_computed("t_clip", loaded, clip_weights=str(clip_weights or ""))
+        embedder = loaded
+    if len(v) < 2:
+        return MetricResult.not_computed("t_clip", f"needs at least 2 frames, got {len(v)}")
+    e = embedder.embed(v)
+    adjacent = tuple(float(x) for x in np.sum(e[:-1] * e[1:], axis=1))
+    if pairs == "adjacent":
+        value = float(np.mean(adjacent))
+    else:
+        g = e @ e.T
+        n = len(e)
+        value = float((g.sum() - np.trace(g)) / (n * (n - 1)))
+    return MetricResult("t_clip", value, adjacent,
+                        info={"clip_weights": embedder.source, "pairs": pairs,
+                              "library": "transformers CLIPModel + CLIPImageProcessorPil", "input": "display -> uint8"})
+
+
+# ----------------------------------------------------------------------------- LPIPS
+def _lpips_backbone_file(folder: Path, net: str) -> Path | None:
+    name = LPIPS_BACKBONE_FILES[net]
+    for cand in (folder / name, folder / "checkpoints" / name):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def load_lpips(lpips_weights: str | Path | None, net: str = "alex"):
+    """An ``lpips.LPIPS`` model with the backbone loaded from ``lpips_weights``, or the "not
+    computed" reason string.
+
+    ``lpips_weights`` is a folder holding the torchvision ImageNet checkpoint of the backbone
+    (:data:`LPIPS_BACKBONE_FILES`, e.g. ``alexnet-owt-7be5be79.pth``) either directly or under
+    ``checkpoints/`` (so a torch hub cache folder, ``~/.cache/torch/hub``, works as is). The LPIPS
+    linear layers are the v0.1 files shipped inside the ``lpips`` package. The backbone is built
+    untrained (``pnet_rand=True``, so torchvision downloads nothing) and its ``features.*``
+    parameters are copied in from the checkpoint.
+    """
+    if net not in LPIPS_BACKBONE_FILES:
+        raise ValueError(f"lpips: net must be one of {sorted(LPIPS_BACKBONE_FILES)}, got {net!r}")
+    if not lpips_weights:
+        return "no LPIPS weights configured (evaluation.lpips_weights is empty); nothing is downloaded"
+    folder = Path(lpips_weights)
+    if not folder.is_dir():
+        return f"no LPIPS weights at {folder}"
+    ckpt = _lpips_backbone_file(folder, net)
+    if ckpt is None:
+        return (f"no LPIPS weights at {folder}: {LPIPS_BACKBONE_FILES[net]} is missing there "
+                "(directly or under checkpoints/)")
+    try:
+        import lpips
+    except Exception as exc:  # ImportError, or torchvision's RuntimeError for a torch build mismatch
+        return (f"the lpips package cannot be imported here ({type(exc).__name__}: {exc}); it needs a "
+                f"torchvision that matches torch: {LPIPS_INSTALL}")
+    return _build_lpips(str(ckpt.resolve()), net)
+
+
+@functools.lru_cache(maxsize=2)
+def _build_lpips(ckpt: str, net: str):
+    import re
+
+    import lpips
+    import torch
+
+    from .io import DataError
+
+    model = lpips.LPIPS(net=net, version="0.1", pretrained=True, pnet_rand=True, verbose=False)
+    state = torch.load(ckpt, map_location="cpu", weights_only=True)
+    with torch.no_grad():
+        for name, param in model.net.named_parameters():
+            key = re.sub(r"^slice\d+\.(\d+)\.", r"features.\1.", name)
+            if key not in state or state[key].shape != param.shape:
+                raise DataError(f"{ckpt}: no tensor {key} of shape {tuple(param.shape)} for the LPIPS {net} "
+                                f"backbone; use torchvision's {LPIPS_BACKBONE_FILES[net]}")
+            param.copy_(state[key])
+    return model.eval()
+
+
+def lpips_video(method, target, lpips_weights: str | Path | None = None, net: str = "alex",
+                model=None, batch_size: int = 8) -> MetricResult:
+    """Per-frame LPIPS (``lpips`` v0.1, inputs scaled to [-1, 1]) and the mean over frames.
+
+    Not computed (value None) without a local backbone checkpoint or where ``lpips`` cannot be
+    imported. On this project's CPU machines PyPI's torchvision wheels (0.28.0 / 0.29.x) link
+    libtorch_cuda.so and fail to import beside the CPU torch 2.13.0 build, so ``lpips`` cannot run
+    there; on a CUDA machine: ``pip install torchvision==0.28.0 lpips==0.1.4`` and set
+    ``evaluation.lpips_weights`` to a folder with ``alexnet-owt-7be5be79.pth``.
+    """
+    m, t = _pair(method, target)
+    if model is None:
+        loaded = load_lpips(lpips_weights, net)
+        if isinstance(loaded, str):
+            return MetricResult.not_computed("lpips", loaded, lpips_weights=str(lpips_weights or ""), net=net)
+        model = loaded
+    import torch
+
+    def to_t(x):
+        return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32)) * 2.0 - 1.0
+
+    vals = []
+    with torch.no_grad():
+        for i in range(0, len(m), batch_size):
+            d = model(to_t(m[i:i + batch_size]), to_t(t[i:i + batch_size]))
+            vals.extend(float(x) for x in d.reshape(-1))
+    return MetricResult("lpips", _finite_mean(vals), tuple(vals),
+                        info={"library": "lpips 0.1 linear layers", "net": net, "input": "display scaled to [-1, 1]",
+                              "lpips_weights": str(lpips_weights or "")})
+
+
+# ----------------------------------------------------------------------------- one clip
+def evaluate_clip(method, target, *, clip_weights=None, lpips_weights=None, lpips_net: str = "alex",
+                  flows: VideoFlows | None = None, embedder: ClipImageEmbedder | None = None) -> dict:
+    """All metrics of the paper for one (method, target) pair of display videos.
+
+    Returns {metric name: MetricResult}: psnr_db, ssim, lpips, t_clip (on the method's video),
+    warp_ssim (flow from the target, or the given ``flows`` of it).
+    """
+    m, t = _pair(method, target)
+    return {
+        "psnr_db": framewise_psnr(m, t),
+        "ssim": framewise_ssim(m, t),
+        "lpips": lpips_video(m, t, lpips_weights, lpips_net),
+        "t_clip": t_clip(m, clip_weights, embedder),
+        "warp_ssim": warp_ssim(m, t, flows=flows),
+    }
+
+
+# ----------------------------------------------------------------------------- aggregation
+def clip_mean(per_item: Iterable[float]) -> float:
+    """Per-frame (or per-transition) values -> the clip's mean; non-finite values raise."""
+    v = np.asarray(list(per_item), np.float64)
+    if v.size == 0 or not np.isfinite(v).all():
+        raise ValueError(f"clip_mean: need finite values, got {v.size} values with "
+                         f"{int((~np.isfinite(v)).sum())} non-finite")
+    return float(v.mean())
+
+
+def _values(records: Sequence[Mapping], metric: str) -> list:
+    return [r.get(metric) for r in records]
+
+
+def group_table(records: Sequence[Mapping], metrics: Sequence[str], by: Sequence[str] = ("lighting",)) -> list[dict]:
+    """Mean per group of clip records ({by keys..., metric: per-clip value}), sorted by the keys.
+
+    A cell is None when any clip of the group lacks the metric (not computed): a partial mean is
+    never reported under the metric's name. Each row has ``n_clips``.
+    """
+    groups: dict[tuple, list] = {}
+    for r in records:
+        groups.setdefault(tuple(r[k] for k in by), []).append(r)
+    rows = []
+    for key in sorted(groups, key=lambda k: tuple(str(x) for x in k)):
+        rs = groups[key]
+        row = dict(zip(by, key))
+        row["n_clips"] = len(rs)
+        for name in metrics:
+            vals = _values(rs, name)
+            row[name] = None if any(v is None for v in vals) else float(np.mean(vals))
+        rows.append(row)
+    return rows
+
+
+def paper_average(records: Sequence[Mapping], metric: str, levels: Sequence[str] = ("scene", "lighting")) -> float | None:
+    """Mean over frames (already in each record), then over clips of each innermost group, then
+    level by level outwards: by default clips -> lighting -> scene -> overall. None when any
+    record lacks the metric."""
+    vals = _values(records, metric)
+    if not records or any(v is None for v in vals):
+        return None
+
+    def rec(rs, depth):
+        if depth == len(levels):
+            return float(np.mean([r[metric] for r in rs]))
+        groups: dict = {}
+        for r in rs:
+            groups.setdefault(r[levels[depth]], []).append(r)
+        return float(np.mean([rec(g, depth + 1) for g in groups.values()]))
+
+    return rec(list(records), 0)
+
+
+def bootstrap_ci(values: Sequence[float], n_resamples: int = BOOTSTRAP_RESAMPLES,
+                 confidence: float = BOOTSTRAP_CONFIDENCE, seed: int = BOOTSTRAP_SEED) -> dict:
+    """Percentile bootstrap CI of the mean of per-clip values (clips resampled with replacement)."""
+    v = np.asarray(values, np.float64)
+    if v.ndim != 1 or v.size < 2 or not np.isfinite(v).all():
+        raise ValueError(f"bootstrap_ci: need at least 2 finite per-clip values, got {v.shape} "
+                         f"({int((~np.isfinite(v)).sum()) if v.size else 0} non-finite)")
+    rng = np.random.default_rng(seed)
+    means = v[rng.integers(0, v.size, size=(n_resamples, v.size))].mean(axis=1)
+    lo, hi = np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])
+    return {"mean": float(v.mean()), "low": float(lo), "high": float(hi), "n": int(v.size),
+            "n_resamples": int(n_resamples), "confidence": float(confidence), "seed": int(seed),
+            "method": "percentile bootstrap over clips"}
+
+
+def paired_bootstrap_ci(a: Sequence[float], b: Sequence[float], n_resamples: int = BOOTSTRAP_RESAMPLES,
+                        confidence: float = BOOTSTRAP_CONFIDENCE, seed: int = BOOTSTRAP_SEED) -> dict:
+    """Percentile bootstrap CI of mean(a - b) over the same clips (pairs resampled together)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"paired_bootstrap_ci: {a.shape} vs {b.shape} values; pair the same clips")
+    out = bootstrap_ci(a - b, n_resamples, confidence, seed)
+    out["method"] = "paired percentile bootstrap over clips (a - b)"
+    return out
