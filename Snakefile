@@ -1,4 +1,4 @@
-# LightCrafter: synthetic scenes -> ground truth -> proxies -> pairs -> refiner -> evaluation.
+# LightCrafter: synthetic scenes -> ground truth -> Phi -> proxies -> pairs -> refiner -> evaluation.
 # Configuration: config/config.yaml (laptop default) or config/paper.yaml (paper scale);
 # every key is documented in config/README.md and validated against workflow/schemas/.
 from pathlib import Path
@@ -16,6 +16,8 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/assets.smk"
 include: "workflow/rules/scenes.smk"
 include: "workflow/rules/render.smk"
+include: "workflow/rules/reconstruct.smk"
+include: "workflow/rules/ingest.smk"
 include: "workflow/rules/proxy.smk"
 include: "workflow/rules/dataset.smk"
 include: "workflow/rules/refiner.smk"
@@ -26,17 +28,29 @@ rule ground_truth:
     input:
         gt_buffer_manifests(),
         gt_rgb_manifests(),
-        f"{OUT}/summary/ground_truth.json",
+        L.summary("ground_truth"),
 
 
 rule scene_specs:
     input:
-        expand(f"{OUT}/scenes/{{scene}}/scene.json", scene=SCENE_IDS),
+        [L.scene_spec(s) for s in SCENE_IDS],
+
+
+rule pairs:
+    input:
+        [L.pairs(v) for v in DATASET_VARIANTS],
+        [L.benchmark_pairs(b) for b in BENCHMARKS],
+
+
+rule ablations:
+    input:
+        [L.eval_metrics(v, b) for v in ("full", "no_real", "no_synthetic", "clean_buffers") for b in BENCHMARKS],
 
 
 rule all:
     default_target: True
     input:
         rules.ground_truth.input,
+        L.summary("reconstruction"),
         refiner_outputs(),
-        f"{OUT}/report/index.html",
+        L.report_index(),

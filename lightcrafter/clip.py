@@ -214,6 +214,8 @@ def read_info(clip: str | os.PathLike) -> ClipInfo:
     """Parse and check a clip's manifest (the folder or its ``buffers.json``)."""
     mpath = manifest_path(clip)
     man = io.read_json(mpath)
+    if isinstance(man, dict) and man.get("skipped"):
+        raise io.DataError(f"{mpath}: this clip was left out ({man['skipped']}); it has no buffers")
     frames = man.get("frames")
     if not isinstance(frames, list) or not frames or not all(isinstance(f, str) for f in frames):
         raise io.DataError(f"{mpath}: 'frames' must be a non-empty list of buffer EXR paths; rerun the stage that wrote it")
@@ -267,3 +269,17 @@ def identity(clip: str | os.PathLike) -> dict:
     info = read_info(clip)
     cams = info.root / info.manifest.get("cameras", CAMERAS)
     return {"manifest": info.manifest, "cameras": io.read_json(cams) if cams.is_file() else None}
+
+
+def write_skipped(clip_dir: str | os.PathLike, reason: str, extra: dict | None = None) -> dict:
+    """Mark a clip that its producer could not make (e.g. structure from motion failed): a manifest
+    with ``skipped`` and the reason, no buffers. Consumers check :func:`is_skipped` and leave it out."""
+    man = {"format": FORMAT, "skipped": str(reason), **(extra or {})}
+    io.write_json(Path(clip_dir) / MANIFEST, man)
+    return man
+
+
+def is_skipped(clip: str | os.PathLike) -> str | None:
+    """The reason a clip was skipped, or None for a real clip."""
+    man = io.read_json(manifest_path(clip))
+    return man.get("skipped") if isinstance(man, dict) else None

@@ -1,56 +1,130 @@
-"""Dataset manifests (``results/datasets/{variant}/pairs.jsonl``, contract in docs/architecture.md).
+"""Pair manifests: the registry of dataset variants and the held-out benchmarks (contract in docs/architecture.md).
 
-``clean_buffers``: proxies rendered by R from GROUND-TRUTH buffers
-(``{out}/proxy_gt/{scene}/{traj}/{light}/{frame:04d}.exr``) paired with the Cycles render under
-the same light (``{out}/gt/{scene}/{traj}/rgb/{light}/{frame:04d}.exr``); one pair per
-(scene, trajectory, target light). Scenes of split ``recon`` are not refiner data and are skipped.
-Frame count and resolution are read from the frames on disk; proxy and target must agree.
+A *pair* is (proxy video, target video) with the same frames, both folders of linear EXR frames
+``{i:04d}.exr`` with a manifest ``<folder>.json``. Kinds:
+
+* ``synthetic``: the proxy is R(Align(Phi(source video)), L_target) -- the artifact-matched proxy --
+  and the target the Cycles video under L_target (one pair per train scene, trajectory and target
+  lighting); variant ``clean_buffers`` uses R on ground-truth buffers instead (the ablation that
+  shows why artifact matching matters);
+* ``real``: the proxy is R(Phi(I), L_hat_source) with the environment map fitted to the real video I,
+  the target is I itself (pseudo-pairs).
+
+Training sets (``results/datasets/{variant}/pairs.jsonl``, split ``train`` only) are named by
+:data:`VARIANTS`; the workflow reads this registry (workflow/rules/common.smk), so adding a variant
+is one entry here. Held-out evaluation sets (``results/benchmarks/{bench}/pairs.jsonl``, split
+``test``) are shared by every variant, so all variants are scored on the same clips: ``synthetic``
+(test scenes, Phi proxies, with the oracle proxy from ground-truth buffers recorded beside) and
+``real`` (test real clips, the paper's DL3DV protocol 1: relight back to the fitted source light and
+compare with the input video).
+
+A clip that the reconstruction stack could not reconstruct (its proxy manifest says ``skipped``) is
+left out of every manifest and counted in ``summary.json`` beside it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
-from lightcrafter.io import DataError, read_exr
+from lightcrafter.io import DataError, read_exr, read_json
+from lightcrafter.layout import Layout
 
+
+@dataclass(frozen=True)
+class Variant:
+    """kinds: pair kinds in the training set; synthetic_proxy: 'proxy' (artifact-matched, from Phi) or
+    'proxy_gt' (clean ground-truth buffers); doc: one line for the report."""
+
+    kinds: tuple[str, ...]
+    synthetic_proxy: str = "proxy"
+    doc: str = ""
+
+
+VARIANTS: dict[str, Variant] = {
+    "full": Variant(("synthetic", "real"), "proxy", "artifact-matched synthetic pairs + real pseudo-pairs (the paper)"),
+    "no_real": Variant(("synthetic",), "proxy", "artifact-matched synthetic pairs only (ablation: no real data)"),
+    "no_synthetic": Variant(("real",), "proxy", "real pseudo-pairs only (ablation: no synthetic data)"),
+    "clean_buffers": Variant(("synthetic",), "proxy_gt", "synthetic pairs with proxies from ground-truth buffers "
+                             "(ablation: no artifact matching)"),
+}
+BENCHMARKS = ("synthetic", "real")
 REFINER_SPLITS = ("train", "test")
 
 
-def clean_buffers_paths(out: str, scene_id: str, traj_id: str, light: str) -> dict[str, str]:
-    """Paths (relative to the workflow root) of one clean-buffers pair's inputs."""
-    return {
-        "proxy": f"{out}/proxy_gt/{scene_id}/{traj_id}/{light}",
-        "proxy_manifest": f"{out}/proxy_gt/{scene_id}/{traj_id}/{light}.json",
-        "target": f"{out}/gt/{scene_id}/{traj_id}/rgb/{light}",
-        "target_manifest": f"{out}/gt/{scene_id}/{traj_id}/rgb/{light}.json",
-    }
+def variant(name: str) -> Variant:
+    if name not in VARIANTS:
+        raise DataError(f"dataset variant {name!r} unknown; use one of {sorted(VARIANTS)}")
+    return VARIANTS[name]
 
 
-def clean_buffers_specs(out: str, plans: dict[str, dict]) -> list[dict]:
-    """One spec per (scene, trajectory, target light) of train/test scenes, sorted by pair id.
-
-    ``plans`` maps scene id -> ``scene_plan(scene_id)`` ({"split", "trajectories": [{"id",
-    "source_light", "target_lights", ...}]}).
-    """
+# ----------------------------------------------------------------------------- specs (no file access)
+def synthetic_specs(layout: Layout, plans: dict[str, dict], split: str, proxy: str = "proxy") -> list[dict]:
+    """One spec per (scene, trajectory, target light) of scenes in ``split``; ``plans`` maps scene id ->
+    scene plan ({"split", "trajectories": [{"id", "source_light", "target_lights"}]})."""
     specs = []
     for scene_id in sorted(plans):
         plan = plans[scene_id]
-        if plan["split"] not in REFINER_SPLITS:
+        if plan["split"] != split:
             continue
         for traj in plan["trajectories"]:
             for light in traj["target_lights"]:
+                folder = layout.proxy(scene_id, traj["id"], light) if proxy == "proxy" \
+                    else layout.proxy_gt(scene_id, traj["id"], light)
                 specs.append({
-                    "pair_id": f"{scene_id}_{traj['id']}_{light}",
-                    "scene_id": scene_id,
-                    "trajectory": traj["id"],
-                    "source_light": traj["source_light"],
-                    "target_light": light,
-                    "split": plan["split"],
-                    **clean_buffers_paths(out, scene_id, traj["id"], light),
+                    "pair_id": f"{scene_id}_{traj['id']}_{light}", "kind": "synthetic",
+                    "scene_id": scene_id, "trajectory": traj["id"], "motion": traj.get("motion"),
+                    "source_light": traj["source_light"], "target_light": light, "split": split,
+                    "proxy": folder, "target": layout.gt_rgb(scene_id, traj["id"], light),
+                    "source": layout.gt_rgb(scene_id, traj["id"], traj["source_light"]),
+                    **({"oracle_proxy": layout.proxy_gt(scene_id, traj["id"], light)} if split == "test" else {}),
                 })
     return sorted(specs, key=lambda s: s["pair_id"])
 
 
+def real_specs(layout: Layout, real_clips: dict[str, dict], split: str) -> list[dict]:
+    """One spec per real clip of ``split``; ``real_clips`` maps clip id -> {"split", "video", ...}."""
+    specs = []
+    for clip_id in sorted(real_clips):
+        c = real_clips[clip_id]
+        if c["split"] != split:
+            continue
+        specs.append({"pair_id": f"real_{clip_id}", "kind": "real", "clip_id": clip_id, "video": c.get("video"),
+                      "split": split, "proxy": layout.pseudo_input(clip_id), "target": layout.real_frames(clip_id),
+                      "source": layout.real_frames(clip_id), "source_light": "fitted", "target_light": "fitted"})
+    return specs
+
+
+def variant_specs(name: str, layout: Layout, plans: dict, real_clips: dict) -> list[dict]:
+    """Training-set specs of variant ``name`` (split train)."""
+    v = variant(name)
+    specs = []
+    if "synthetic" in v.kinds:
+        specs += synthetic_specs(layout, plans, "train", v.synthetic_proxy)
+    if "real" in v.kinds:
+        specs += real_specs(layout, real_clips, "train")
+    return specs
+
+
+def benchmark_specs(bench: str, layout: Layout, plans: dict, real_clips: dict) -> list[dict]:
+    if bench == "synthetic":
+        return synthetic_specs(layout, plans, "test", "proxy")
+    if bench == "real":
+        return real_specs(layout, real_clips, "test")
+    raise DataError(f"benchmark {bench!r} unknown; use one of {BENCHMARKS}")
+
+
+def spec_inputs(specs: list[dict]) -> list[str]:
+    """Manifests a set of specs needs (what the workflow passes as rule inputs)."""
+    files = []
+    for s in specs:
+        for key in ("proxy", "target", "oracle_proxy"):
+            if key in s:
+                files.append(f"{s[key]}.json")
+    return list(dict.fromkeys(files))
+
+
+# ----------------------------------------------------------------------------- records (reads frames)
 def _frame_info(folder: Path) -> tuple[int, int, int]:
     """(num_frames, width, height) of a folder of consecutive ``{frame:04d}.exr`` frames from 0."""
     if not folder.is_dir():
@@ -67,26 +141,36 @@ def _frame_info(folder: Path) -> tuple[int, int, int]:
     return n, int(w), int(h)
 
 
-def build_clean_buffers_records(out: str, plans: dict[str, dict], root: str | Path = ".") -> list[dict]:
-    """pairs.jsonl records for the clean_buffers variant; paths stay relative to ``root``."""
+def skipped_reason(folder: str | Path, root: Path) -> str | None:
+    """The reason a frame folder's producer skipped it (its manifest has ``skipped``), else None."""
+    man = Path(root) / f"{folder}.json"
+    if not man.is_file():
+        raise DataError(f"{man}: manifest missing; the stage that writes {folder} has not finished, rerun it")
+    data = read_json(man)
+    return data.get("skipped") if isinstance(data, dict) else None
+
+
+def build_records(specs: list[dict], root: str | Path = ".", variant_name: str | None = None) -> tuple[list[dict], dict]:
+    """pairs.jsonl records for ``specs`` (paths stay relative to ``root``) and a summary (counts, skips).
+
+    Proxy and target must have the same frame count and size; a skipped proxy drops its pair.
+    """
     root = Path(root)
-    records = []
-    for s in clean_buffers_specs(out, plans):
-        for key in ("proxy_manifest", "target_manifest"):
-            if not (root / s[key]).is_file():
-                raise DataError(f"{s[key]}: manifest missing; the render of pair {s['pair_id']} is incomplete")
-        np_, wp, hp = _frame_info(root / s["proxy"])
-        nt, wt, ht = _frame_info(root / s["target"])
-        if (np_, wp, hp) != (nt, wt, ht):
-            raise DataError(
-                f"pair {s['pair_id']}: proxy {s['proxy']} has {np_} frames {wp}x{hp}, target {s['target']} "
-                f"has {nt} frames {wt}x{ht}; rerender one of them"
-            )
-        records.append({
-            "pair_id": s["pair_id"], "kind": "synthetic", "variant": "clean_buffers",
-            "scene_id": s["scene_id"], "trajectory": s["trajectory"],
-            "source_light": s["source_light"], "target_light": s["target_light"],
-            "proxy": s["proxy"], "target": s["target"],
-            "num_frames": np_, "width": wp, "height": hp, "split": s["split"],
-        })
-    return records
+    records, skipped = [], []
+    for s in specs:
+        reason = skipped_reason(s["proxy"], root) or skipped_reason(s["target"], root)
+        if reason:
+            skipped.append({"pair_id": s["pair_id"], "reason": reason})
+            continue
+        n_p, w_p, h_p = _frame_info(root / s["proxy"])
+        n_t, w_t, h_t = _frame_info(root / s["target"])
+        if (n_p, w_p, h_p) != (n_t, w_t, h_t):
+            raise DataError(f"pair {s['pair_id']}: proxy {s['proxy']} has {n_p} frames {w_p}x{h_p}, target {s['target']} "
+                            f"has {n_t} frames {w_t}x{h_t}; rerender one of them")
+        rec = {**s, "num_frames": n_p, "width": w_p, "height": h_p}
+        if variant_name:
+            rec["variant"] = variant_name
+        records.append(rec)
+    summary = {"pairs": len(records), "by_kind": {k: sum(r["kind"] == k for r in records) for k in ("synthetic", "real")},
+               "skipped": skipped}
+    return records, summary

@@ -1,8 +1,13 @@
 #!/usr/bin/env python
-"""Write results/datasets/{variant}/pairs.jsonl. Thin entry point over lightcrafter.datasets.
+"""Write a pair manifest: a variant's training set or a held-out benchmark (thin entry point over
+lightcrafter.datasets).
 
-  build_dataset.py --variant clean_buffers --plans-json '{"s0000": {...}}' --output PAIRS
-  (--plans-json @file.json reads the plans from a file)
+  build_dataset.py --variant no_real --plans-json '{"s0000": {...}}' --real-json '{}' --output PAIRS
+  build_dataset.py --benchmark synthetic --plans-json @plans.json --real-json @real.json --output PAIRS
+
+Writes PAIRS (pairs.jsonl) and summary.json beside it (pair counts by kind, pairs left out because
+their clip could not be reconstructed, with the reason). ``@file`` reads JSON from a file. The
+output root (e.g. results) is taken from PAIRS (its part before datasets/ or benchmarks/).
 """
 
 import argparse
@@ -12,30 +17,42 @@ from pathlib import Path
 
 import _cli  # noqa: F401  (puts the repository on sys.path)
 
-from lightcrafter.datasets import build_clean_buffers_records
-from lightcrafter.io import DataError, write_jsonl
+from lightcrafter import datasets
+from lightcrafter.io import DataError, write_json, write_jsonl
+from lightcrafter.layout import Layout, root_of
 
-BUILDERS = {"clean_buffers": build_clean_buffers_records}
+
+def _json_arg(text: str):
+    return json.loads(Path(text[1:]).read_text() if text.startswith("@") else text)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--variant", required=True, choices=sorted(BUILDERS))
-    ap.add_argument("--out-root", default=None,
-                    help="workflow output folder holding gt/ and proxy_gt/ (default: OUTPUT/../../..)")
+    what = ap.add_mutually_exclusive_group(required=True)
+    what.add_argument("--variant", choices=sorted(datasets.VARIANTS))
+    what.add_argument("--benchmark", choices=datasets.BENCHMARKS)
     ap.add_argument("--plans-json", required=True, help="JSON {scene_id: scene_plan} or @path")
+    ap.add_argument("--real-json", default="{}", help="JSON {clip_id: {split, video, ...}} or @path")
     ap.add_argument("--output", required=True)
     a = ap.parse_args()
-    out_root = a.out_root or Path(a.output).parents[2].as_posix()  # {out}/datasets/{variant}/pairs.jsonl
-    text = Path(a.plans_json[1:]).read_text() if a.plans_json.startswith("@") else a.plans_json
+    out = Path(a.output)
+    layout = Layout(root_of(out, "datasets" if a.variant else "benchmarks").as_posix())
+    plans, real = _json_arg(a.plans_json), _json_arg(a.real_json)
     try:
-        records = BUILDERS[a.variant](out_root, json.loads(text))
+        specs = (datasets.variant_specs(a.variant, layout, plans, real) if a.variant
+                 else datasets.benchmark_specs(a.benchmark, layout, plans, real))
+        records, summary = datasets.build_records(specs, ".", a.variant)
     except DataError as exc:
         print(f"build_dataset: {exc}", file=sys.stderr)
         return 1
-    write_jsonl(a.output, records)
-    splits = {s: sum(r["split"] == s for r in records) for s in ("train", "test")}
-    print(f"build_dataset: {a.variant}: {len(records)} pairs {splits} -> {a.output}")
+    if not records:
+        print(f"build_dataset: {a.variant or a.benchmark}: no pairs (all {len(summary['skipped'])} left out or none "
+              "configured); check results/*/summary.json and the config's splits", file=sys.stderr)
+        return 1
+    write_json(out.parent / "summary.json", {"name": a.variant or a.benchmark, **summary})
+    write_jsonl(out, records)
+    print(f"build_dataset: {a.variant or a.benchmark}: {len(records)} pairs {summary['by_kind']}, "
+          f"{len(summary['skipped'])} left out -> {out}")
     return 0
 
 

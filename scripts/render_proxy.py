@@ -49,6 +49,14 @@ def main():
                               bilateral_sigma_px=a.bilateral_sigma_px, visibility=a.visibility, sampler=a.sampler,
                               visibility_mesh=VisibilitySettings(rel_threshold=a.rel_threshold,
                                                                  max_faces=a.visibility_max_faces))
+    from lightcrafter.clip import is_skipped
+    from lightcrafter.io import write_json
+
+    reason = is_skipped(a.clip)
+    if reason:  # a clip the reconstruction stack left out: so is its proxy (datasets count it)
+        write_json(f"{a.out}.json", {"format": "lightcrafter.proxy/1", "skipped": reason, "clip": a.clip})
+        print(f"render_proxy: {a.clip} was left out ({reason})")
+        return
     if a.lighting:
         lighting = a.lighting
         if a.exposure_ev:

@@ -28,7 +28,7 @@ rule curate_assets:
     input:
         curation_inputs,
     output:
-        manifest=f"{OUT}/assets/manifest.json",
+        manifest=L.assets_manifest(),
     log:
         "logs/curate_assets.log",
     benchmark:

@@ -1,11 +1,16 @@
-# Shared helpers: config validation, the scene plan, and path builders. No rules here.
+# Shared helpers: config validation, the scene plan, real clips, and input functions. No rules here.
+# Paths come from lightcrafter.layout.Layout (one builder per product); dataset variants from the
+# registry lightcrafter.datasets.VARIANTS.
 import json
 import sys
 from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
 
+from lightcrafter import datasets as ds
 from lightcrafter.config import check_config
+from lightcrafter.ingest import real_clips
+from lightcrafter.layout import Layout
 from lightcrafter.scenes import ConfigError, plan_scene, scene_ids
 
 try:
@@ -14,20 +19,24 @@ except ConfigError as exc:
     sys.exit(f"ConfigError: {exc}")
 
 OUT = config["output_dir"]
+L = Layout(OUT)
 SEED = config["seed"]
 SCENE_IDS = scene_ids(config["scenes"])
 _PLANS = {sid: plan_scene(config["scenes"], SEED, i) for i, sid in enumerate(SCENE_IDS)}
-# Pair-manifest variants that have a dataset rule (dataset.smk). full, no_real and no_synthetic
-# join when the reconstruction stack and real pseudo-pairs exist; until then they cannot be
-# requested (the {variant} wildcard only matches these).
-DATASET_VARIANTS = ["clean_buffers"]
+# Real clips: ids fixed by config (video, chunk index), so the DAG is known before any video is read.
+REAL = real_clips(config.get("real", {}))
+# Dataset variants trained by the default target (each one of lightcrafter.datasets.VARIANTS).
+DATASET_VARIANTS = list(config["datasets"]["variants"])
+BENCHMARKS = [b for b in ds.BENCHMARKS if b != "real" or any(c["split"] == "test" for c in REAL.values())]
 
 
 wildcard_constraints:
     scene=r"s\d{4}",
     traj=r"t\d+",
     light=r"L\d+",
-    variant="|".join(DATASET_VARIANTS),
+    clip=r"[A-Za-z0-9][A-Za-z0-9_]*",
+    variant="|".join(ds.VARIANTS),
+    bench="|".join(ds.BENCHMARKS),
 
 
 def scene_plan(scene_id):
@@ -35,8 +44,8 @@ def scene_plan(scene_id):
     return _PLANS[scene_id]
 
 
-def scenes_in_split(split):
-    return [sid for sid in SCENE_IDS if _PLANS[sid]["split"] == split]
+def scenes_in_split(*splits):
+    return [sid for sid in SCENE_IDS if _PLANS[sid]["split"] in splits]
 
 
 def trajectory_plan(scene_id, traj_id):
@@ -56,10 +65,11 @@ def as_json(obj):
     return json.dumps(obj, sort_keys=True, separators=(",", ":"))
 
 
+# ----------------------------------------------------------------------------- ground truth
 def gt_buffer_manifests(scene_ids=None):
-    """Every trajectory's buffer manifest (lighting-independent: one per trajectory)."""
+    """Every trajectory's ground-truth clip manifest (lighting-independent: one per trajectory)."""
     return [
-        f"{OUT}/gt/{sid}/{t['id']}/buffers.json"
+        L.gt_clip_manifest(sid, t["id"])
         for sid in (scene_ids or SCENE_IDS)
         for t in _PLANS[sid]["trajectories"]
     ]
@@ -68,7 +78,7 @@ def gt_buffer_manifests(scene_ids=None):
 def gt_rgb_manifests(scene_ids=None):
     """Every (trajectory, lighting) that some pair uses; unused lightings are left out."""
     return [
-        f"{OUT}/gt/{sid}/{t['id']}/rgb/{light}.json"
+        f"{L.gt_rgb(sid, t['id'], light)}.json"
         for sid in (scene_ids or SCENE_IDS)
         for t in _PLANS[sid]["trajectories"]
         for light in t["render_lights"]
@@ -86,7 +96,7 @@ def curated_dir(wildcards, output):
 
 
 def trajectory_dir(wildcards, output):
-    """results/gt/{scene}/{traj} from any of its outputs (buffers.json or rgb/{light}.json)."""
+    """The trajectory folder from any of its outputs (buffers.json or rgb/{light}.json)."""
     out = Path(output[0])
     return str(out.parent.parent if out.parent.name == "rgb" else out.parent)
 
@@ -108,39 +118,81 @@ def gt_root_of_inputs(wildcards, input):
     return str(Path(input.buffers[0]).parents[2])
 
 
-def report_inputs():
-    """What the run report summarises: ground-truth counts and every variant's evaluation."""
-    return [f"{OUT}/summary/ground_truth.json", *refiner_outputs()]
+def manifest_stem(wildcards, output):
+    """Frames folder beside a manifest: results/x/{light}.json -> results/x/{light}."""
+    return str(Path(output[0]).with_suffix(""))
 
 
-def results_root(wildcards, output):
-    """results/ from results/report/index.html."""
-    return str(Path(output[0]).parents[1])
+# ----------------------------------------------------------------------------- reconstruction
+def recon_settings():
+    """The default backend's settings (lightcrafter.recon.default.DefaultSettings) from config."""
+    r = config["recon"]
+    return {
+        "fov_x_deg": r.get("fov_x_deg") or config["scenes"]["fov_x_deg"],
+        "normals": r.get("normals", "predicted"),
+        "sfm": r.get("sfm", {}),
+    }
+
+
+def recon_clip_id(wildcards):
+    return f"{wildcards.scene}_{wildcards.traj}"
+
+
+def source_video(wildcards):
+    """The source-light Cycles video of a trajectory: what Phi sees."""
+    t = trajectory_plan(wildcards.scene, wildcards.traj)
+    return f"{L.gt_rgb(wildcards.scene, wildcards.traj, t['source_light'])}.json"
+
+
+def scene_static_flag(wildcards):
+    """Video metadata given to Phi: whether objects move (the motion config of the trajectory)."""
+    return int(trajectory_plan(wildcards.scene, wildcards.traj)["scene_static"])
+
+
+def estimator_training_inputs(wildcards):
+    """Ground-truth clips and source videos of the recon split (never train or test scenes)."""
+    recon = scenes_in_split("recon")
+    return {
+        "clips": gt_buffer_manifests(recon) if recon else [],
+        "videos": [
+            f"{L.gt_rgb(sid, t['id'], t['source_light'])}.json"
+            for sid in recon
+            for t in _PLANS[sid]["trajectories"]
+        ],
+    }
+
+
+# ----------------------------------------------------------------------------- real videos
+def real_clip(wildcards):
+    return REAL[wildcards.clip]
+
+
+def real_clip_json(wildcards):
+    return as_json(REAL[wildcards.clip])
 
 
 # ----------------------------------------------------------------------------- datasets, refiner
 def refiner_scene_plans():
     """{scene_id: scene_plan} of the scenes that give refiner pairs (split train or test)."""
-    return {
-        sid: scene_plan(sid)
-        for sid in SCENE_IDS
-        if scene_plan(sid)["split"] in ("train", "test")
-    }
+    return {sid: _PLANS[sid] for sid in scenes_in_split("train", "test")}
 
 
-def clean_buffers_inputs(wildcards):
-    """Proxy-from-GT-buffers manifests and Cycles target manifests of every clean_buffers pair."""
-    files = []
-    for sid, plan in refiner_scene_plans().items():
-        for traj in plan["trajectories"]:
-            for light in traj["target_lights"]:
-                files.append(f"{OUT}/proxy_gt/{sid}/{traj['id']}/{light}.json")
-                files.append(f"{OUT}/gt/{sid}/{traj['id']}/rgb/{light}.json")
-    return files
-
-
-def refiner_plans_json(wildcards):
+def plans_json(wildcards):
     return as_json(refiner_scene_plans())
+
+
+def real_json(wildcards):
+    return as_json(REAL)
+
+
+def variant_inputs(wildcards):
+    specs = ds.variant_specs(wildcards.variant, L, refiner_scene_plans(), REAL)
+    return ds.spec_inputs(specs)
+
+
+def benchmark_inputs(wildcards):
+    specs = ds.benchmark_specs(wildcards.bench, L, refiner_scene_plans(), REAL)
+    return ds.spec_inputs(specs)
 
 
 def refiner_model_config():
@@ -165,15 +217,42 @@ def refiner_threads():
     return refiner_resource("threads", 2)
 
 
-def refiner_pairs(wildcards):
-    return f"{OUT}/datasets/{wildcards.variant}/pairs.jsonl"
-
-
 def refiner_outputs():
-    """Evaluation outputs of every dataset variant that exists."""
-    return [f"{OUT}/eval/{v}/metrics.json" for v in DATASET_VARIANTS]
+    """Evaluation outputs of every configured variant on every benchmark."""
+    return [L.eval_metrics(v, b) for v in DATASET_VARIANTS for b in BENCHMARKS]
 
 
-def manifest_stem(wildcards, output):
-    """Frames folder beside a manifest: results/x/{light}.json -> results/x/{light}."""
-    return str(Path(output[0]).with_suffix(""))
+def report_inputs():
+    """What the run report summarises."""
+    return [L.summary("ground_truth"), L.summary("reconstruction"), *refiner_outputs()]
+
+
+def results_root(wildcards, output):
+    """results/ from results/report/index.html."""
+    return str(Path(output[0]).parents[1])
+
+
+def real_recon_settings(wildcards):
+    """Phi's settings for a real clip: the video's own field-of-view prior."""
+    c = REAL[wildcards.clip]
+    return as_json(dict(recon_settings(), fov_x_deg=c["fov_x_deg"], camera="static" if c["camera_static"] else "auto"))
+
+
+def real_scene_static(wildcards):
+    return int(REAL[wildcards.clip]["scene_static"])
+
+
+def manifest_stem_of_input(wildcards, input):
+    """Frames folder beside the rule's 'video' manifest input."""
+    return str(Path(input.video).with_suffix(""))
+
+
+def synthetic_recon_inputs(wildcards):
+    """Phi clips, aligned clips and ground truth of every train/test trajectory, and real clips."""
+    trajs = [(s, t["id"]) for s in scenes_in_split("train", "test") for t in _PLANS[s]["trajectories"]]
+    return {
+        "est": [L.recon_clip("synthetic", f"{s}_{t}") + "/buffers.json" for s, t in trajs],
+        "aligned": [L.aligned_clip(s, t) + "/buffers.json" for s, t in trajs],
+        "gt": [L.gt_clip_manifest(s, t) for s, t in trajs],
+        "real": [L.recon_clip("real", c) + "/buffers.json" for c in REAL],
+    }

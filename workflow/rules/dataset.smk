@@ -1,18 +1,17 @@
-# Pair manifests results/datasets/{variant}/pairs.jsonl (contract: docs/architecture.md).
-# Only variants whose data stages exist have a rule here; each appends itself to
-# DATASET_VARIANTS, which constrains the refiner's {variant} wildcard (include this file
-# before refiner.smk). full / no_real / no_synthetic plug in as rules when their stages exist.
+# Pair manifests (lightcrafter.datasets): a training set per dataset variant of the registry
+# (VARIANTS: full, no_real, no_synthetic, clean_buffers) and the held-out benchmarks every variant is
+# scored on (synthetic: test scenes with Phi proxies; real: test real clips, relit to the fitted light).
 
 
-rule dataset_clean_buffers:
+rule dataset:
     input:
-        clean_buffers_inputs,
+        variant_inputs,
     output:
-        pairs=f"{OUT}/datasets/clean_buffers/pairs.jsonl",
+        pairs=L.pairs("{variant}"),
     log:
-        "logs/dataset/clean_buffers.log",
+        "logs/dataset/{variant}.log",
     benchmark:
-        "logs/benchmark/dataset/clean_buffers.tsv"
+        "logs/benchmark/dataset/{variant}.tsv"
     conda:
         "../../envs/refiner.yaml"
     threads: 1
@@ -21,7 +20,32 @@ rule dataset_clean_buffers:
         runtime=10,
     params:
         script=script_path("build_dataset.py"),
-        plans=refiner_plans_json,
+        plans=plans_json,
+        real=real_json,
     shell:
-        "python {params.script} --variant clean_buffers "
-        "--plans-json {params.plans:q} --output {output.pairs} > {log} 2>&1"
+        "python {params.script} --variant {wildcards.variant} --plans-json {params.plans:q} "
+        "--real-json {params.real:q} --output {output.pairs} > {log} 2>&1"
+
+
+rule benchmark_pairs:
+    input:
+        benchmark_inputs,
+    output:
+        pairs=L.benchmark_pairs("{bench}"),
+    log:
+        "logs/dataset/benchmark_{bench}.log",
+    benchmark:
+        "logs/benchmark/dataset/benchmark_{bench}.tsv"
+    conda:
+        "../../envs/refiner.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    params:
+        script=script_path("build_dataset.py"),
+        plans=plans_json,
+        real=real_json,
+    shell:
+        "python {params.script} --benchmark {wildcards.bench} --plans-json {params.plans:q} "
+        "--real-json {params.real:q} --output {output.pairs} > {log} 2>&1"

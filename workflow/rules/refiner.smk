@@ -1,15 +1,13 @@
-# Refiner: training per dataset variant, inference on the held-out split, evaluation.
-# Config: config["refiner"] is the refiner config dict (keys: lightcrafter/refiner/config.py
-# KEY_DOCS) plus "resources" {threads, mem_mb, runtime} used by these rules only.
-# {variant} is constrained to DATASET_VARIANTS (dataset.smk): variants without a dataset rule
-# cannot be requested, and new ones plug in by adding their dataset rule there.
+# Refiner: training per dataset variant (its train split), inference and evaluation on each held-out
+# benchmark (shared by all variants). Config: config["refiner"] is the refiner config dict (keys:
+# lightcrafter/refiner/config.py KEY_DOCS) plus "resources" {threads, mem_mb, runtime} for these rules.
 
 
 rule train_refiner:
     input:
-        pairs=refiner_pairs,
+        pairs=L.pairs("{variant}"),
     output:
-        model=f"{OUT}/refiner/{{variant}}/model.pt",
+        model=L.refiner_model("{variant}"),
     log:
         "logs/refiner/train_{variant}.log",
     benchmark:
@@ -23,7 +21,7 @@ rule train_refiner:
     params:
         script=script_path("train_refiner.py"),
         cfg=refiner_config_json,
-        out_dir=f"{OUT}/refiner/{{variant}}",
+        out_dir=parent_dir,
     shell:
         "python {params.script} --pairs {input.pairs} "
         "--config-json {params.cfg:q} --out {params.out_dir} --threads {threads} > {log} 2>&1"
@@ -31,14 +29,14 @@ rule train_refiner:
 
 rule infer_refiner:
     input:
-        model=f"{OUT}/refiner/{{variant}}/model.pt",
-        pairs=refiner_pairs,
+        model=L.refiner_model("{variant}"),
+        pairs=L.benchmark_pairs("{bench}"),
     output:
-        manifest=f"{OUT}/refined/{{variant}}/manifest.json",
+        manifest=L.refined("{variant}", "{bench}") + "/manifest.json",
     log:
-        "logs/refiner/infer_{variant}.log",
+        "logs/refiner/infer_{variant}_{bench}.log",
     benchmark:
-        "logs/benchmark/refiner/infer_{variant}.tsv"
+        "logs/benchmark/refiner/infer_{variant}_{bench}.tsv"
     conda:
         "../../envs/refiner.yaml"
     threads: refiner_threads()
@@ -48,7 +46,7 @@ rule infer_refiner:
     params:
         script=script_path("infer_refiner.py"),
         cfg=refiner_infer_json,
-        out_dir=f"{OUT}/refined/{{variant}}",
+        out_dir=parent_dir,
     shell:
         "python {params.script} --model {input.model} --pairs {input.pairs} "
         "--split test --config-json {params.cfg:q} --out {params.out_dir} --threads {threads} > {log} 2>&1"
@@ -56,14 +54,14 @@ rule infer_refiner:
 
 rule evaluate_refiner:
     input:
-        pairs=refiner_pairs,
-        refined=f"{OUT}/refined/{{variant}}/manifest.json",
+        pairs=L.benchmark_pairs("{bench}"),
+        refined=L.refined("{variant}", "{bench}") + "/manifest.json",
     output:
-        metrics=f"{OUT}/eval/{{variant}}/metrics.json",
+        metrics=L.eval_metrics("{variant}", "{bench}"),
     log:
-        "logs/refiner/evaluate_{variant}.log",
+        "logs/refiner/evaluate_{variant}_{bench}.log",
     benchmark:
-        "logs/benchmark/refiner/evaluate_{variant}.tsv"
+        "logs/benchmark/refiner/evaluate_{variant}_{bench}.tsv"
     conda:
         "../../envs/refiner.yaml"
     threads: 1

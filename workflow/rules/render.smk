@@ -4,11 +4,10 @@
 
 rule render_buffers:
     input:
-        scene=f"{OUT}/scenes/{{scene}}/scene.json",
-        manifest=f"{OUT}/assets/manifest.json",
+        scene=L.scene_spec("{scene}"),
+        manifest=L.assets_manifest(),
     output:
-        buffers=f"{OUT}/gt/{{scene}}/{{traj}}/buffers.json",
-        cameras=f"{OUT}/gt/{{scene}}/{{traj}}/cameras.json",
+        buffers=L.gt_clip_manifest("{scene}", "{traj}"),
     log:
         "logs/render_buffers/{scene}_{traj}.log",
     benchmark:
@@ -29,12 +28,12 @@ rule render_buffers:
 
 rule render_rgb:
     input:
-        scene=f"{OUT}/scenes/{{scene}}/scene.json",
-        manifest=f"{OUT}/assets/manifest.json",
+        scene=L.scene_spec("{scene}"),
+        manifest=L.assets_manifest(),
     output:
-        frames=f"{OUT}/gt/{{scene}}/{{traj}}/rgb/{{light}}.json",
+        frames=L.gt_rgb("{scene}", "{traj}", "{light}") + ".json",
         preview=report(
-            f"{OUT}/gt/{{scene}}/{{traj}}/rgb/{{light}}.mp4",
+            L.gt_rgb("{scene}", "{traj}", "{light}") + ".mp4",
             category="Ground truth",
             labels={"scene": "{scene}", "trajectory": "{traj}", "lighting": "{light}"},
         ),
@@ -58,11 +57,11 @@ rule render_rgb:
 
 rule summarize_ground_truth:
     input:
-        specs=expand(f"{OUT}/scenes/{{scene}}/scene.json", scene=SCENE_IDS),
+        specs=[L.scene_spec(s) for s in SCENE_IDS],
         buffers=gt_buffer_manifests(),
         rgb=gt_rgb_manifests(),
     output:
-        report(f"{OUT}/summary/ground_truth.json", category="Ground truth"),
+        report(L.summary("ground_truth"), category="Ground truth"),
     log:
         "logs/summarize_ground_truth.log",
     benchmark:

@@ -6,7 +6,7 @@ rule run_report:
     input:
         report_inputs(),
     output:
-        report(f"{OUT}/report/index.html", category="Report"),
+        report(L.report_index(), category="Report"),
     log:
         "logs/run_report.log",
     benchmark:

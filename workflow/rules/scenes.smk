@@ -3,9 +3,9 @@
 
 rule sample_scene:
     input:
-        manifest=f"{OUT}/assets/manifest.json",
+        manifest=L.assets_manifest(),
     output:
-        f"{OUT}/scenes/{{scene}}/scene.json",
+        L.scene_spec("{scene}"),
     log:
         "logs/sample_scene/{scene}.log",
     benchmark:

@@ -1,0 +1,234 @@
+"""The default (CPU) backend of Phi: COLMAP cameras + the learned G-buffer estimator, from pixels only.
+
+Steps for a video of N linear frames ``{i:04d}.exr`` (converted to display values with the one display
+transform, lightcrafter.io.linear_to_display, as a camera would record them):
+
+1. cameras (:func:`lightcrafter.recon.cameras.estimate_cameras`): static detection, else COLMAP SfM
+   with the intrinsics prior held fixed; SfM world and units;
+2. per-frame buffers from the estimator (:mod:`.estimator`): depth in the training scenes' metres,
+   camera-space normals, albedo, roughness, metallic, mask;
+3. depth made consistent with the cameras: a robust per-frame scale s_i = median(z_sfm / d_pred)
+   over the SfM points seen in frame i (frames with fewer than ``min_points`` take their nearest
+   neighbour's), smoothed by a 3-frame median; a static camera keeps the estimator's metres;
+4. world normals: the estimator's (rotated by c2w), or derived from the depth map (config
+   ``normals: depth``: cross product of the unprojected points' image-space differences);
+5. a Z-up world: the dominant direction of the predicted surface normals (the ground dominates
+   these scenes) is rotated onto +Z (the smallest rotation), for cameras and normals alike;
+6. a static camera over a static scene gives ONE buffer frame: the per-frame predictions are averaged
+   (median depth, mean normal/materials), so R builds its meshes once.
+
+Nothing here reads ground truth. Units are "arbitrary" (SfM scale).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lightcrafter import clip as clipmod
+from lightcrafter import io
+from lightcrafter.recon.cameras import CameraTrack, ReconstructionError, SfMSettings, estimate_cameras, point_depths
+
+
+@dataclass
+class DefaultSettings:
+    """fov_x_deg: intrinsics prior (horizontal field of view, degrees); camera: auto (static detection,
+    else SfM) | static (known fixed camera: no SfM); normals: predicted | depth;
+    min_points: SfM points a frame needs for its own depth scale; mask_threshold: estimator mask
+    probability above which a pixel is a surface; sfm: SfMSettings fields; exposure_ev: display
+    exposure applied before estimation."""
+
+    fov_x_deg: float = 50.0
+    camera: str = "auto"
+    normals: str = "predicted"
+    min_points: int = 8
+    mask_threshold: float = 0.5
+    exposure_ev: float = 0.0
+    sfm: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "DefaultSettings":
+        d = dict(d or {})
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"unknown recon key(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
+        s = cls(**d)
+        if s.camera not in ("auto", "static"):
+            raise ValueError(f"recon camera={s.camera!r}: use 'auto' or 'static'")
+        if s.normals not in ("predicted", "depth"):
+            raise ValueError(f"recon.normals={s.normals!r}: use 'predicted' or 'depth'")
+        SfMSettings(**s.sfm)  # validate
+        return s
+
+
+def read_video_frames(frames_dir: str | Path, exposure_ev: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Linear EXR frames ``{i:04d}.exr`` (consecutive from 0) -> (display float (N,H,W,3) in [0,1], uint8)."""
+    frames_dir = Path(frames_dir)
+    files = []
+    while (frames_dir / f"{len(files):04d}.exr").is_file():
+        files.append(frames_dir / f"{len(files):04d}.exr")
+    if not files:
+        raise io.DataError(f"{frames_dir}: no frames 0000.exr...; run the stage that writes the video")
+    disp = [io.linear_to_display(io.read_rgb_exr(f), exposure_ev) for f in files]
+    shapes = {d.shape for d in disp}
+    if len(shapes) > 1:
+        raise io.DataError(f"{frames_dir}: frames of mixed sizes {sorted(shapes)}; re-export the video at one size")
+    d = np.stack(disp)
+    return d, io.to_uint8(d)
+
+
+def depth_scales(track: CameraTrack, depth_pred: np.ndarray, min_points: int) -> np.ndarray:
+    """Per-frame factors taking predicted depth to the cameras' units (see module docstring)."""
+    n, h, w = depth_pred.shape
+    if track.static:
+        return np.ones(n)
+    s = np.full(n, np.nan)
+    for i in range(n):
+        uv, z = point_depths(track, i)
+        if len(z) < min_points:
+            continue
+        col = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
+        row = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
+        dp = depth_pred[i, row, col]
+        ok = (z > 0) & np.isfinite(dp) & (dp > 0)
+        if ok.sum() >= min_points:
+            s[i] = np.median(z[ok] / dp[ok])
+    have = np.flatnonzero(np.isfinite(s))
+    if not len(have):
+        raise ReconstructionError("no frame sees enough SfM points to scale its depth")
+    for i in np.flatnonzero(~np.isfinite(s)):
+        s[i] = s[have[np.argmin(np.abs(have - i))]]
+    if n >= 3:
+        pad = np.concatenate([s[:1], s, s[-1:]])
+        s = np.median(np.stack([pad[:-2], pad[1:-1], pad[2:]]), axis=0)
+    return s
+
+
+def normals_from_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Camera-space unit normals (H,W,3, OpenCV axes, facing the camera) from a z-depth map."""
+    from lightcrafter.proxy.geometry import camera_rays
+
+    h, w = depth.shape
+    P = camera_rays(K, h, w) * depth[..., None]
+    dx = np.zeros_like(P)
+    dy = np.zeros_like(P)
+    dx[:, 1:-1] = (P[:, 2:] - P[:, :-2]) / 2
+    dx[:, 0], dx[:, -1] = P[:, 1] - P[:, 0], P[:, -1] - P[:, -2]
+    dy[1:-1] = (P[2:] - P[:-2]) / 2
+    dy[0], dy[-1] = P[1] - P[0], P[-1] - P[-2]
+    n = np.cross(dy, dx)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    flip = (n * P).sum(-1) > 0  # face the camera
+    return np.where(flip[..., None], -n, n)
+
+
+def up_rotation(up: np.ndarray) -> np.ndarray:
+    """Smallest rotation taking unit vector ``up`` onto +Z (Rodrigues)."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    z = np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(up, z), float(up @ z)
+    if np.linalg.norm(v) < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1 + c)
+
+
+def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimator_path: str | Path, fps: float,
+                        scene_static: bool, settings: DefaultSettings = DefaultSettings(), name: str | None = None,
+                        extra: dict | None = None) -> dict:
+    """Run the default Phi on a folder of linear frames and write the clip; returns its manifest.
+
+    Raises :class:`ReconstructionError` (one line naming the clip) when the cameras cannot be recovered.
+    """
+    from lightcrafter.recon import estimator as est
+
+    t0 = time.perf_counter()
+    name = name or str(frames_dir)
+    disp, u8 = read_video_frames(frames_dir, settings.exposure_ev)
+    n, h, w, _ = disp.shape
+    if settings.camera == "static":
+        from lightcrafter.recon.cameras import prior_intrinsics, static_track
+
+        track = static_track(n, prior_intrinsics(w, h, np.radians(settings.fov_x_deg)))
+        track.info = {"method": "static (given)", "registered": n, "frames": n}
+    else:
+        track = estimate_cameras(u8, np.radians(settings.fov_x_deg), SfMSettings(**settings.sfm), name=name)
+    t_cam = time.perf_counter() - t0
+    model = est.load(estimator_path)
+    pred = est.predict(model, disp)
+    t_est = time.perf_counter() - t0 - t_cam
+    try:
+        scale = depth_scales(track, pred["depth"], settings.min_points)
+    except ReconstructionError as exc:
+        raise ReconstructionError(f"{name}: {exc}") from None
+    mask = pred["mask"] > settings.mask_threshold
+    depth = pred["depth"] * scale[:, None, None]
+    if settings.normals == "depth":
+        n_cam = np.stack([normals_from_depth(depth[i], track.K[i]) for i in range(n)])
+    else:
+        n_cam = pred["normal_cam"]
+    R_c2w = track.c2w[:, :3, :3]
+    n_world = np.einsum("nij,nhwj->nhwi", R_c2w, n_cam)
+    up = (n_world * mask[..., None]).sum(axis=(0, 1, 2))
+    Q = up_rotation(up) if np.linalg.norm(up) > 0 else np.eye(3)
+    c2w = track.c2w.copy()
+    c2w[:, :3, :3] = Q @ R_c2w
+    c2w[:, :3, 3] = track.c2w[:, :3, 3] @ Q.T
+    n_world = n_world @ Q.T
+    one = track.static and scene_static
+    inputs = {"what": "phi-default", "frames": _frames_identity(frames_dir, n), "settings": asdict(settings),
+              "estimator": _file_digest(estimator_path), "scene_static": scene_static}
+    frames = clipmod.buffer_frames(out_clip, inputs)
+    distinct = [0] if one else list(range(n))
+    todo = frames.missing(distinct, io.read_buffers)
+
+    def buffers_of(idx) -> io.Buffers:
+        sel = slice(None) if one else slice(idx, idx + 1)
+        m = mask[sel].mean(0) > 0.5
+        d = np.median(depth[sel], axis=0)
+        nn_ = n_world[sel].mean(0)
+        nn_ /= np.maximum(np.linalg.norm(nn_, axis=-1, keepdims=True), 1e-9)
+        ok = m & np.isfinite(d) & (d > 0)
+        return io.Buffers(depth=np.where(ok, d, np.inf).astype(np.float32),
+                          normal=np.where(ok[..., None], nn_, 0.0).astype(np.float32),
+                          albedo=np.where(ok[..., None], pred["albedo"][sel].mean(0), 0.0).astype(np.float32),
+                          roughness=np.where(ok, pred["roughness"][sel].mean(0), 0.0).astype(np.float32),
+                          metallic=np.where(ok, pred["metallic"][sel].mean(0), 0.0).astype(np.float32),
+                          mask=ok.astype(np.float32))
+
+    for i in todo:
+        frames.stamp()
+        io.write_buffers(frames.path(i), buffers_of(i))
+    info = {**track.info, "depth_scale_per_frame": np.round(scale, 6).tolist(),
+            "registered_per_frame": track.registered.tolist()}
+    timing = {"cameras_seconds": round(t_cam, 3), "estimator_seconds": round(t_est, 3),
+              "seconds": round(time.perf_counter() - t0, 3), "frames": n}
+    io.write_json(Path(out_clip) / "timing.json", timing)  # beside the manifest: run times vary between runs
+    return clipmod.write_clip(
+        out_clip, serve=[0] * n if one else list(range(n)), K=track.K, c2w=c2w, width=w, height=h, fps=fps,
+        camera_static=track.static, scene_static=scene_static, units="arbitrary",
+        producer={"stage": "phi", "backend": "default", "settings": asdict(settings)},
+        content_id=io.fingerprint(inputs), extra={**(extra or {}), "phi": _without_times(info)},
+    )
+
+
+def _frames_identity(frames_dir, n) -> list:
+    d = Path(frames_dir)
+    manifest = d.with_suffix(".json")
+    if manifest.is_file():
+        return [manifest.read_text()]
+    return [(f"{i:04d}.exr", (d / f"{i:04d}.exr").stat().st_size) for i in range(n)]
+
+
+def _without_times(info: dict) -> dict:
+    """Diagnostics without run times (those go to timing.json): equal inputs, byte-identical manifests."""
+    return {k: v for k, v in info.items() if k != "seconds"}
+
+
+def _file_digest(path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]

@@ -1,0 +1,327 @@
+"""A small G-buffer estimator: display RGB frame -> depth, normals, albedo, roughness, metallic, mask.
+
+The CPU default of the reconstruction stack's intrinsic-image part, in the spirit of DiffusionRenderer's
+inverse renderer (learned from synthetic G-buffers), at laptop scale: a U-Net (torch) trained by a
+workflow rule on the ground-truth buffers of the ``recon`` split only (never train or test scenes).
+
+Inputs and outputs (per frame, H and W multiples of 8)
+------------------------------------------------------
+* input: display RGB in [0, 1] (lightcrafter.io.linear_to_display of the linear frame, i.e. what a
+  camera records), plus two channels of normalised pixel coordinates (x, y in [-1, 1]) so the network
+  can learn the ground plane's depth gradient from image position;
+* ``depth``: z-depth in metres of the training scenes' scale (exp of the predicted log-depth; a
+  reconstruction rescales it per frame to its cameras' units);
+* ``normal_cam``: unit normals in CAMERA coordinates, OpenCV axes (x right, y down, z forward);
+* ``albedo``: linear base colour in [0, 1]; ``roughness``, ``metallic`` in [0, 1];
+* ``mask``: probability that the pixel is a surface (1) rather than the environment (0).
+
+Loss (ground-truth surface pixels unless stated): L1 on log depth, (1 - cos) on normals, L1 on
+albedo, roughness and metallic, binary cross-entropy on the mask (all pixels). Training is seeded and
+single-process; the same config, data and thread count give the same weights.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from lightcrafter import io
+
+OUTPUT_CHANNELS = {"log_depth": 1, "normal": 3, "albedo": 3, "roughness": 1, "metallic": 1, "mask": 1}
+
+
+@dataclass
+class EstimatorConfig:
+    """widths: channels per U-Net level (each level halves the resolution); steps: optimizer steps;
+    batch: crops per step; crop: [height, width] of the random training crops (pixels; the network is
+    fully convolutional and sees each crop's full-frame coordinates; null = whole frames); lr: Adam learning rate; eval_every: steps between validation points of the
+    error-against-time curve; seed; threads: torch CPU threads."""
+
+    widths: list[int] = field(default_factory=lambda: [16, 32, 48, 64])
+    steps: int = 400
+    batch: int = 8
+    crop: list[int] = field(default_factory=lambda: [64, 96])
+    lr: float = 2e-3
+    eval_every: int = 100
+    seed: int = 0
+    threads: int = 2
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "EstimatorConfig":
+        d = dict(d or {})
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"unknown recon.estimator key(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
+        return cls(**d)
+
+
+def frame_coords(h: int, w: int) -> torch.Tensor:
+    """(1, 2, H, W) normalised pixel coordinates of a full frame: x then y, each in [-1, 1]."""
+    ys = torch.linspace(-1, 1, h).view(1, 1, h, 1).expand(1, 1, h, w)
+    xs = torch.linspace(-1, 1, w).view(1, 1, 1, w).expand(1, 1, h, w)
+    return torch.cat([xs, ys], dim=1)
+
+
+def _block(cin: int, cout: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=1), nn.GroupNorm(min(8, cout), cout), nn.SiLU(),
+                         nn.Conv2d(cout, cout, 3, padding=1), nn.GroupNorm(min(8, cout), cout), nn.SiLU())
+
+
+class GBufferNet(nn.Module):
+    """U-Net over [RGB, x, y] -> raw output channels of :data:`OUTPUT_CHANNELS`."""
+
+    def __init__(self, widths: list[int]):
+        super().__init__()
+        self.widths = list(widths)
+        self.down = nn.ModuleList()
+        cin = 5
+        for w in widths:
+            self.down.append(_block(cin, w))
+            cin = w
+        self.up = nn.ModuleList()
+        for w_skip, w in zip(reversed(widths[:-1]), reversed(widths[1:])):
+            self.up.append(_block(w + w_skip, w_skip))
+        self.head = nn.Conv2d(widths[0], sum(OUTPUT_CHANNELS.values()), 1)
+
+    @property
+    def stride(self) -> int:
+        return 2 ** (len(self.widths) - 1)
+
+    def forward(self, rgb: torch.Tensor, coords: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """rgb: (B, 3, H, W) display values in [0, 1]; coords: (B, 2, H, W) normalised full-frame pixel
+        coordinates (x, y in [-1, 1]; default: those of a full frame, give a crop's own when training
+        on crops) -> dict of predictions (see module docstring)."""
+        b, _, h, w = rgb.shape
+        if h % self.stride or w % self.stride:
+            raise ValueError(f"frame {w}x{h}: width and height must be multiples of {self.stride}")
+        if coords is None:
+            coords = frame_coords(h, w).expand(b, 2, h, w)
+        x = torch.cat([rgb * 2 - 1, coords], dim=1)
+        feats = []
+        for i, blk in enumerate(self.down):
+            x = blk(x if i == 0 else F.avg_pool2d(x, 2))
+            feats.append(x)
+        x = feats.pop()
+        for blk in self.up:
+            skip = feats.pop()
+            x = blk(torch.cat([F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False), skip], 1))
+        out = self.head(x)
+        parts = dict(zip(OUTPUT_CHANNELS, torch.split(out, list(OUTPUT_CHANNELS.values()), dim=1)))
+        return {
+            "log_depth": parts["log_depth"][:, 0] + 1.5,  # centred on e^1.5 = 4.5 m, the cameras' typical distance
+            "normal": F.normalize(parts["normal"] + torch.tensor([0.0, -1.0, 0.0]).view(1, 3, 1, 1), dim=1),
+            "albedo": torch.sigmoid(parts["albedo"]),
+            "roughness": torch.sigmoid(parts["roughness"][:, 0]),
+            "metallic": torch.sigmoid(parts["metallic"][:, 0] - 2.0),
+            "mask_logit": parts["mask"][:, 0] + 3.0,
+        }
+
+
+# ----------------------------------------------------------------------------- data
+@dataclass
+class Sample:
+    """One training frame: display RGB (3,H,W) in [0,1] and its ground-truth targets."""
+
+    rgb: torch.Tensor
+    log_depth: torch.Tensor
+    normal_cam: torch.Tensor
+    albedo: torch.Tensor
+    roughness: torch.Tensor
+    metallic: torch.Tensor
+    mask: torch.Tensor
+
+
+def sample_from(display_rgb: np.ndarray, b: io.Buffers, c2w: np.ndarray) -> Sample:
+    """Training targets of one frame from its display RGB (H,W,3 in [0,1]) and ground-truth buffers."""
+    m = b.mask > 0.5
+    n_cam = np.where(m[..., None], b.normal @ np.asarray(c2w)[:3, :3], 0.0)  # world -> camera (R^T n)
+    logd = np.where(m, np.log(np.where(m, b.depth, 1.0)), 0.0)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, np.float32))  # noqa: E731
+    return Sample(rgb=t(display_rgb.transpose(2, 0, 1)), log_depth=t(logd), normal_cam=t(n_cam.transpose(2, 0, 1)),
+                  albedo=t(b.albedo.transpose(2, 0, 1)), roughness=t(b.roughness), metallic=t(b.metallic), mask=t(m))
+
+
+def load_clip_samples(clip_dir: str | Path, frames_dir: str | Path, exposure_ev: float = 0.0) -> list[Sample]:
+    """Samples of every frame of a ground-truth clip whose linear video frames are ``frames_dir/{i:04d}.exr``."""
+    from lightcrafter.clip import read_clip
+
+    views, info = read_clip(clip_dir)
+    out = []
+    for i, v in enumerate(views):
+        rgb = io.linear_to_display(io.read_rgb_exr(Path(frames_dir) / f"{i:04d}.exr"), exposure_ev)
+        if rgb.shape[:2] != v.buffers.shape:
+            raise io.DataError(f"{frames_dir}/{i:04d}.exr: frame is {rgb.shape[1]}x{rgb.shape[0]} but clip {info.root} "
+                               f"is {info.width}x{info.height}; re-render one of them")
+        out.append(sample_from(rgb, v.buffers, v.c2w))
+    return out
+
+
+def _stack(samples: list[Sample]) -> Sample:
+    return Sample(**{k: torch.stack([getattr(s, k) for s in samples]) for k in Sample.__dataclass_fields__})
+
+
+def loss_terms(pred: dict, s: Sample) -> dict[str, torch.Tensor]:
+    m = s.mask
+    msum = m.sum().clamp_min(1.0)
+    cos = (pred["normal"] * s.normal_cam).sum(1)
+    return {
+        "depth": ((pred["log_depth"] - s.log_depth).abs() * m).sum() / msum,
+        "normal": ((1 - cos) * m).sum() / msum,
+        "albedo": ((pred["albedo"] - s.albedo).abs().mean(1) * m).sum() / msum,
+        "roughness": ((pred["roughness"] - s.roughness).abs() * m).sum() / msum,
+        "metallic": ((pred["metallic"] - s.metallic).abs() * m).sum() / msum,
+        "mask": F.binary_cross_entropy_with_logits(pred["mask_logit"], m),
+    }
+
+
+# ----------------------------------------------------------------------------- errors
+def buffer_errors(pred: dict[str, np.ndarray], gt: io.Buffers, c2w: np.ndarray | None = None,
+                  align_depth_scale: bool = True) -> dict[str, float]:
+    """Errors of predicted buffers against ground truth on pixels that are surface in both.
+
+    ``pred``: depth (H,W, metres or any scale), normal (H,W,3, WORLD when c2w is None, else camera
+    coordinates rotated to world with c2w), albedo (H,W,3 linear), roughness, metallic (H,W), mask (H,W).
+    depth_abs_rel: mean |d - d_gt| / d_gt after a median depth scale when ``align_depth_scale``;
+    normal_deg: mean angle; albedo_psnr_db: PSNR of linear albedo (peak 1); roughness/metallic MAE;
+    mask_iou.
+    """
+    m_gt = gt.mask > 0.5
+    m_p = np.asarray(pred["mask"]) > 0.5
+    both = m_gt & m_p & np.isfinite(pred["depth"]) & (pred["depth"] > 0)
+    out = {"mask_iou": float((m_gt & m_p).sum() / max((m_gt | m_p).sum(), 1)), "pixels": int(both.sum())}
+    if not both.any():
+        return out | {"depth_abs_rel": float("nan"), "normal_deg": float("nan"), "albedo_psnr_db": float("nan"),
+                      "roughness_mae": float("nan"), "metallic_mae": float("nan")}
+    d, dg = pred["depth"][both], gt.depth[both]
+    if align_depth_scale:
+        d = d * np.median(dg / d)
+    n = np.asarray(pred["normal"], np.float64)
+    if c2w is not None:
+        n = n @ np.asarray(c2w)[:3, :3].T
+    cos = np.clip((n[both] * gt.normal[both]).sum(-1) / np.maximum(np.linalg.norm(n[both], axis=-1), 1e-9), -1, 1)
+    mse = float(np.mean((pred["albedo"][both] - gt.albedo[both]) ** 2))
+    return out | {
+        "depth_abs_rel": float(np.mean(np.abs(d - dg) / dg)),
+        "normal_deg": float(np.degrees(np.mean(np.arccos(cos)))),
+        "albedo_psnr_db": float(10 * np.log10(1.0 / max(mse, 1e-12))),
+        "roughness_mae": float(np.mean(np.abs(pred["roughness"][both] - gt.roughness[both]))),
+        "metallic_mae": float(np.mean(np.abs(pred["metallic"][both] - gt.metallic[both]))),
+    }
+
+
+# ----------------------------------------------------------------------------- train / predict
+@torch.no_grad()
+def predict(model: GBufferNet, display_rgb: np.ndarray) -> dict[str, np.ndarray]:
+    """Predictions for display frames (N,H,W,3) in [0,1] (or one frame (H,W,3)); numpy arrays per key:
+    depth (metres of the training scale), normal_cam (OpenCV camera axes), albedo, roughness, metallic, mask."""
+    x = np.asarray(display_rgb, np.float32)
+    single = x.ndim == 3
+    if single:
+        x = x[None]
+    model.eval()
+    outs = []
+    for k in range(0, len(x), 8):
+        p = model(torch.from_numpy(np.ascontiguousarray(x[k:k + 8].transpose(0, 3, 1, 2))))
+        outs.append({"depth": torch.exp(p["log_depth"]).numpy(), "normal_cam": p["normal"].permute(0, 2, 3, 1).numpy(),
+                     "albedo": p["albedo"].permute(0, 2, 3, 1).numpy(), "roughness": p["roughness"].numpy(),
+                     "metallic": p["metallic"].numpy(), "mask": torch.sigmoid(p["mask_logit"]).numpy()})
+    res = {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
+    return {k: v[0] for k, v in res.items()} if single else res
+
+
+def _validation_errors(model: GBufferNet, val: list[tuple[np.ndarray, io.Buffers, np.ndarray]]) -> dict[str, float]:
+    rows = []
+    for rgb, b, c2w in val:
+        p = predict(model, rgb)
+        rows.append(buffer_errors({"depth": p["depth"], "normal": p["normal_cam"], "albedo": p["albedo"],
+                                   "roughness": p["roughness"], "metallic": p["metallic"], "mask": p["mask"]}, b, c2w))
+    keys = [k for k in rows[0] if k != "pixels"]
+    return {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
+
+
+def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers, np.ndarray]], cfg: EstimatorConfig,
+                    log=print) -> tuple[GBufferNet, list[dict]]:
+    """Train from scratch; returns (model, curve) where curve lists validation errors against
+    optimizer steps and seconds of training (evaluation time excluded)."""
+    if not train:
+        raise io.DataError("G-buffer estimator: no training frames (the recon split is empty); "
+                           "give scenes.splits a recon share")
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    model = GBufferNet(cfg.widths)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1), eta_min=cfg.lr * 0.05)
+    curve, seconds = [], 0.0
+    for step in range(1, cfg.steps + 1):
+        t0 = time.perf_counter()
+        model.train()
+        idx = torch.randint(len(train), (cfg.batch,), generator=gen).tolist()
+        batch = _stack([train[i] for i in idx])
+        h, w = batch.rgb.shape[-2:]
+        coords = frame_coords(h, w).expand(len(idx), 2, h, w)
+        if cfg.crop:
+            ch, cw = min(cfg.crop[0], h), min(cfg.crop[1], w)
+            y0 = int(torch.randint(h - ch + 1, (1,), generator=gen)) // 8 * 8
+            x0 = int(torch.randint(w - cw + 1, (1,), generator=gen)) // 8 * 8
+            batch = Sample(**{k: getattr(batch, k)[..., y0:y0 + ch, x0:x0 + cw] for k in Sample.__dataclass_fields__})
+            coords = coords[..., y0:y0 + ch, x0:x0 + cw]
+        if bool(torch.rand((), generator=gen) < 0.5):  # horizontal flip: mirror x, the x coordinate and normals' x
+            batch = Sample(**{k: torch.flip(getattr(batch, k), dims=[-1]) for k in Sample.__dataclass_fields__})
+            batch.normal_cam = batch.normal_cam * torch.tensor([-1.0, 1.0, 1.0]).view(1, 3, 1, 1)
+            coords = torch.flip(coords, dims=[-1]) * torch.tensor([-1.0, 1.0]).view(1, 2, 1, 1)
+        terms = loss_terms(model(batch.rgb, coords.contiguous()), batch)
+        loss = sum(terms.values())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        seconds += time.perf_counter() - t0
+        if val and (step % cfg.eval_every == 0 or step == cfg.steps):
+            errs = _validation_errors(model, val)
+            curve.append({"step": step, "seconds": round(seconds, 2), "loss": float(loss), **errs})
+            log(f"estimator step {step}: loss {float(loss):.4f} " + " ".join(f"{k} {v:.3f}" for k, v in errs.items()))
+    return model, curve
+
+
+def save(model: GBufferNet, cfg: EstimatorConfig, path: str | Path, extra: dict | None = None) -> None:
+    with io.atomic_path(path) as tmp:
+        torch.save({"state": model.state_dict(), "config": asdict(cfg), **(extra or {})}, tmp)
+
+
+def load(path: str | Path) -> GBufferNet:
+    path = Path(path)
+    if not path.is_file():
+        raise io.DataError(f"{path}: G-buffer estimator weights not found; run the train_gbuffer_estimator rule")
+    try:
+        st = torch.load(path, map_location="cpu", weights_only=False)
+        model = GBufferNet(st["config"]["widths"])
+        model.load_state_dict(st["state"])
+    except (KeyError, RuntimeError, EOFError) as exc:
+        raise io.DataError(f"{path}: unreadable estimator weights ({exc}); delete it and retrain") from exc
+    return model.eval()
+
+
+def curve_bench(curve: list[dict], cfg: EstimatorConfig, metric: str = "normal_deg") -> dict:
+    """The training curve in the benchmark shape (docs/architecture.md), one series per error."""
+    import os
+    import platform
+
+    points = []
+    for key in ("normal_deg", "depth_abs_rel", "albedo_psnr_db"):
+        points += [{"series": key, "setting": c["step"], "seconds": c["seconds"], "value": c[key]} for c in curve]
+    return {"name": "gbuffer_estimator", "varied": "training steps (seconds of training on this machine)",
+            "metric": metric, "higher_is_better": False, "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
+            "chosen": cfg.steps, "chosen_series": metric, "points": points,
+            "note": "validation errors on held-out recon-split trajectories; albedo_psnr_db is higher-is-better"}
+
+
+def write_curve(path: str | Path, curve: list[dict], cfg: EstimatorConfig) -> None:
+    io.write_text(path, json.dumps(curve_bench(curve, cfg), indent=1, sort_keys=True) + "\n")

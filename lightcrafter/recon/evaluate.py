@@ -1,0 +1,76 @@
+"""Errors of the reconstruction stack against ground truth, per clip and per motion config.
+
+For a synthetic trajectory: the Phi clip (its cameras' registration), the aligned clip (lightcrafter.recon.align)
+and the ground-truth clip. All errors are on the ALIGNED reconstruction (the one R renders):
+
+* depth_abs_rel: mean |d - d_gt| / d_gt over pixels that are surface in both (no further rescaling);
+* normal_deg: mean angle between world normals (degrees);
+* albedo_psnr_db: PSNR of linear albedo, peak 1; roughness_mae, metallic_mae;
+* rotation_deg: median over frames of the angle of R_gt^T R_aligned (camera orientation error, degrees);
+* translation_m: median distance between aligned and true camera centres (metres);
+* registered_fraction: frames the SfM registered (static cameras count as registered);
+* mask_iou of surface masks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lightcrafter import clip as clipmod
+from lightcrafter.recon.estimator import buffer_errors
+
+
+def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    c = (np.trace(np.asarray(Ra).T @ np.asarray(Rb)) - 1) / 2
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def clip_errors(est_clip, aligned_clip, gt_clip) -> dict:
+    """Errors of one synthetic clip (see module docstring); ``skipped`` when Phi left it out."""
+    reason = clipmod.is_skipped(est_clip)
+    if reason:
+        return {"skipped": reason}
+    views_a, info_a = clipmod.read_clip(aligned_clip)
+    views_g, info_g = clipmod.read_clip(gt_clip)
+    est = clipmod.read_info(est_clip)
+    rows = []
+    for i in info_g.distinct_frames:
+        a, g = views_a[i].buffers, views_g[i].buffers
+        rows.append(buffer_errors({"depth": a.depth, "normal": a.normal, "albedo": a.albedo, "roughness": a.roughness,
+                                   "metallic": a.metallic, "mask": a.mask}, g, None, align_depth_scale=False))
+    keys = [k for k in rows[0] if k != "pixels"]
+    out = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
+    rot = [rotation_angle_deg(va.c2w[:3, :3], vg.c2w[:3, :3]) for va, vg in zip(views_a, views_g)]
+    trans = [float(np.linalg.norm(va.c2w[:3, 3] - vg.c2w[:3, 3])) for va, vg in zip(views_a, views_g)]
+    phi = est.manifest.get("phi", {})
+    reg = phi.get("registered_per_frame")
+    out.update({
+        "rotation_deg": float(np.median(rot)), "rotation_deg_max": float(np.max(rot)),
+        "translation_m": float(np.median(trans)),
+        "registered_fraction": float(np.mean(reg)) if reg else 1.0,
+        "camera_method": phi.get("method"), "camera_static_detected": bool(est.camera_static),
+        "buffer_frames": int(est.manifest.get("buffer_frames", 0)), "frames": info_g.num_frames,
+        "align": info_a.manifest.get("align"),
+    })
+    return out
+
+
+def summarize(per_clip: dict[str, dict], motions: dict[str, str]) -> dict:
+    """Means per motion config and overall; counts of registered frames and skipped clips."""
+    out = {"clips": len(per_clip), "skipped": {k: v["skipped"] for k, v in per_clip.items() if "skipped" in v},
+           "by_motion": {}}
+    keys = ("depth_abs_rel", "normal_deg", "albedo_psnr_db", "roughness_mae", "metallic_mae", "mask_iou",
+            "rotation_deg", "translation_m", "registered_fraction")
+    groups: dict[str, list[dict]] = {}
+    for cid, e in per_clip.items():
+        if "skipped" not in e:
+            groups.setdefault(motions.get(cid, "unknown"), []).append(e)
+            groups.setdefault("all", []).append(e)
+    for motion, rows in sorted(groups.items()):
+        out["by_motion"][motion] = {"clips": len(rows), **{k: float(np.mean([r[k] for r in rows])) for k in keys}}
+        out["by_motion"][motion]["rotation_deg_median"] = float(np.median([r["rotation_deg"] for r in rows]))
+    moving = [e for cid, e in per_clip.items() if "skipped" not in e and not e["camera_static_detected"]]
+    n_mov = sum(e["frames"] for e in moving)
+    out["moving_camera_frames_registered"] = (float(sum(e["registered_fraction"] * e["frames"] for e in moving) / n_mov)
+                                             if n_mov else None)
+    return out

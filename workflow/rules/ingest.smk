@@ -1,0 +1,111 @@
+# Real videos -> real pseudo-pairs: ingest a clip (linear frames at the training size), run the same
+# Phi as the synthetic branch, fit the source environment map, render the pseudo-input R(S, L_hat).
+
+
+rule ingest_video:
+    output:
+        frames=L.real_frames("{clip}") + ".json",
+    log:
+        "logs/ingest/{clip}.log",
+    benchmark:
+        "logs/benchmark/ingest/{clip}.tsv"
+    conda:
+        "../../envs/recon.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        script=script_path("ingest_video.py"),
+        clip=real_clip_json,
+        out_dir=manifest_stem,
+        width=config["scenes"]["width"],
+        height=config["scenes"]["height"],
+        frames=config["scenes"]["num_frames"],
+        short=config["real"].get("short_clips", "skip"),
+    shell:
+        "python {params.script} --clip-json {params.clip:q} --clip-id {wildcards.clip} --out {params.out_dir} "
+        "--width {params.width} --height {params.height} --num-frames {params.frames} "
+        "--short-clips {params.short} > {log} 2>&1"
+
+
+rule reconstruct_real:
+    input:
+        video=L.real_frames("{clip}") + ".json",
+        estimator=L.estimator(),
+    output:
+        clip=L.recon_clip("real", "{clip}") + "/buffers.json",
+    log:
+        "logs/recon/real_{clip}.log",
+    benchmark:
+        "logs/benchmark/recon/real_{clip}.tsv"
+    conda:
+        "../../envs/recon.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    params:
+        script=script_path("reconstruct.py"),
+        out_dir=parent_dir,
+        settings=real_recon_settings,
+        static=real_scene_static,
+        skip="--skip-failed" if config["recon"].get("skip_failed", True) else "",
+    shell:
+        "python {params.script} --frames {input.video} --out {params.out_dir} --estimator {input.estimator} "
+        "--scene-static {params.static} --settings-json {params.settings:q} --name {wildcards.clip} "
+        "{params.skip} > {log} 2>&1"
+
+
+rule fit_envmap:
+    input:
+        clip=L.recon_clip("real", "{clip}") + "/buffers.json",
+        video=L.real_frames("{clip}") + ".json",
+    output:
+        lighting=L.envfit("{clip}") + "/lighting.json",
+    log:
+        "logs/envfit/{clip}.log",
+    benchmark:
+        "logs/benchmark/envfit/{clip}.tsv"
+    conda:
+        "../../envs/mitsuba.yaml"
+    threads: 2
+    resources:
+        mem_mb=4000,
+        runtime=30,
+    params:
+        script=script_path("fit_envmap.py"),
+        out_dir=parent_dir,
+        frames=manifest_stem_of_input,
+        settings=as_json(config.get("envfit", {})),
+    shell:
+        "python {params.script} --clip {input.clip} --frames {params.frames} --out {params.out_dir} "
+        "--settings-json {params.settings:q} --threads {threads} > {log} 2>&1"
+
+
+rule render_pseudo_input:
+    input:
+        clip=L.recon_clip("real", "{clip}") + "/buffers.json",
+        lighting=L.envfit("{clip}") + "/lighting.json",
+    output:
+        manifest=L.pseudo_input("{clip}") + ".json",
+    log:
+        "logs/render_proxy/real_{clip}.log",
+    benchmark:
+        "logs/benchmark/render_proxy/real_{clip}.tsv"
+    conda:
+        "../../envs/mitsuba.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    params:
+        script=script_path("render_proxy.py"),
+        out_dir=manifest_stem,
+        spp=config["proxy"]["spp"],
+        visibility=config["proxy"]["visibility"],
+        rel_threshold=config["proxy"]["rel_threshold"],
+    shell:
+        "python {params.script} --clip {input.clip} --lighting {input.lighting} --out {params.out_dir} "
+        "--spp {params.spp} --visibility {params.visibility} --rel-threshold {params.rel_threshold} "
+        "--threads {threads} > {log} 2>&1"

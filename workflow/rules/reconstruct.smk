@@ -1,0 +1,102 @@
+# The reconstruction stack Phi (lightcrafter.recon): the G-buffer estimator trained on the recon split,
+# Phi run ONCE per synthetic trajectory on its source-light video (not per target light), and Align
+# into the ground-truth frame (synthetic only; a global similarity and a depth scale).
+
+
+rule train_gbuffer_estimator:
+    input:
+        unpack(estimator_training_inputs),
+    output:
+        model=L.estimator(),
+        curve=report(L.estimator_curve(), category="Reconstruction"),
+    log:
+        "logs/recon/train_gbuffer_estimator.log",
+    benchmark:
+        "logs/benchmark/recon/train_gbuffer_estimator.tsv"
+    conda:
+        "../../envs/refiner.yaml"
+    threads: 2
+    resources:
+        mem_mb=4000,
+        runtime=60,
+    params:
+        script=script_path("train_estimator.py"),
+        cfg=as_json(dict(config["recon"].get("estimator", {}), threads=2)),
+    shell:
+        "python {params.script} --clips {input.clips} --videos {input.videos} "
+        "--config-json {params.cfg:q} --out {output.model} --curve {output.curve} > {log} 2>&1"
+
+
+rule reconstruct_synthetic:
+    input:
+        video=source_video,
+        estimator=L.estimator(),
+    output:
+        clip=L.recon_clip("synthetic", "{scene}_{traj}") + "/buffers.json",
+    log:
+        "logs/recon/synthetic_{scene}_{traj}.log",
+    benchmark:
+        "logs/benchmark/recon/synthetic_{scene}_{traj}.tsv"
+    conda:
+        "../../envs/recon.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    params:
+        script=script_path("reconstruct.py"),
+        out_dir=parent_dir,
+        fps=config["scenes"]["fps"],
+        static=scene_static_flag,
+        settings=as_json(recon_settings()),
+        skip="--skip-failed" if config["recon"].get("skip_failed", True) else "",
+    shell:
+        "python {params.script} --frames {input.video} --out {params.out_dir} --estimator {input.estimator} "
+        "--fps {params.fps} --scene-static {params.static} --settings-json {params.settings:q} "
+        "--name {wildcards.scene}_{wildcards.traj} {params.skip} > {log} 2>&1"
+
+
+rule align_synthetic:
+    input:
+        est=L.recon_clip("synthetic", "{scene}_{traj}") + "/buffers.json",
+        gt=L.gt_clip_manifest("{scene}", "{traj}"),
+    output:
+        clip=L.aligned_clip("{scene}", "{traj}") + "/buffers.json",
+    log:
+        "logs/recon/align_{scene}_{traj}.log",
+    benchmark:
+        "logs/benchmark/recon/align_{scene}_{traj}.tsv"
+    conda:
+        "../../envs/recon.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        script=script_path("align_clip.py"),
+        out_dir=parent_dir,
+    shell:
+        "python {params.script} --est {input.est} --gt {input.gt} --out {params.out_dir} > {log} 2>&1"
+
+
+rule summarize_reconstruction:
+    input:
+        unpack(synthetic_recon_inputs),
+    output:
+        report(L.summary("reconstruction"), category="Reconstruction"),
+    log:
+        "logs/recon/summarize_reconstruction.log",
+    benchmark:
+        "logs/benchmark/recon/summarize_reconstruction.tsv"
+    conda:
+        "../../envs/recon.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        script=script_path("summarize_recon.py"),
+        plans=plans_json,
+    shell:
+        "python {params.script} --est {input.est} --aligned {input.aligned} --gt {input.gt} "
+        "--real {input.real} --plans-json {params.plans:q} --out {output} > {log} 2>&1"
