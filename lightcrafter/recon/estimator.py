@@ -286,8 +286,8 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
         seconds += time.perf_counter() - t0
         if val and (step % cfg.eval_every == 0 or step == cfg.steps):
             errs = _validation_errors(model, val)
-            curve.append({"step": step, "seconds": round(seconds, 2), "loss": float(loss), **errs})
-            log(f"estimator step {step}: loss {float(loss):.4f} " + " ".join(f"{k} {v:.3f}" for k, v in errs.items()))
+            curve.append({"step": step, "seconds": round(seconds, 2), "loss": float(loss.detach()), **errs})
+            log(f"estimator step {step}: loss {float(loss.detach()):.4f} " + " ".join(f"{k} {v:.3f}" for k, v in errs.items()))
     return model, curve
 
 

@@ -1,0 +1,199 @@
+"""Reconstruction stack: Align, camera helpers, the estimator's plumbing, and the default backend's pieces."""
+
+import numpy as np
+import pytest
+
+from lightcrafter import clip as clipmod
+from lightcrafter import io
+from lightcrafter.proxy import synthetic as syn
+from lightcrafter.recon import align
+from lightcrafter.recon.default import depth_scales, normals_from_depth, up_rotation
+
+W, H, N = 48, 32, 4
+
+
+def _rot(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def _gt_clip(root, static=False, seed=0):
+    K = syn.intrinsics(W, H, 0.9)
+    angles = [0.0] * N if static else [0.0, 0.08, 0.16, 0.24]
+    c2ws = [syn.look_at([2.5 * np.cos(a), 2.5 * np.sin(a), 1.4], [0, 0, 0.3]) for a in angles]
+    spheres = [syn.Sphere((0, 0, 0.5), 0.5, albedo=(0.7, 0.2, 0.1), roughness=0.3)]
+    for i, c in enumerate(c2ws):
+        io.write_buffers(clipmod.buffer_path(root, i), syn.raycast_buffers(K, c, W, H, spheres))
+    return clipmod.write_clip(root, serve=list(range(N)), K=[K] * N, c2w=c2ws, width=W, height=H, fps=24,
+                              camera_static=static, scene_static=True, units="metres", producer={"stage": "test"},
+                              content_id=f"gt{seed}")
+
+
+def _transformed(gt_root, out, R, t, s, depth_extra=1.0, noise=None):
+    """A 'reconstruction': the ground truth under x_est = (R^T (x_gt - t)) / s, depth scale extra, optional
+    per-pixel depth noise."""
+    views, info = clipmod.read_clip(gt_root)
+    c2w = []
+    for i, v in enumerate(views):
+        b = v.buffers
+        d = b.depth / s * depth_extra
+        if noise is not None:
+            d = d * (1 + noise[i])
+        io.write_buffers(clipmod.buffer_path(out, i), io.Buffers(
+            depth=np.where(np.isfinite(b.depth), d, np.inf).astype(np.float32),
+            normal=(b.normal @ R).astype(np.float32), albedo=b.albedo, roughness=b.roughness, metallic=b.metallic,
+            mask=b.mask))
+        e = np.eye(4)
+        e[:3, :3] = R.T @ v.c2w[:3, :3]
+        e[:3, 3] = R.T @ (v.c2w[:3, 3] - t) / s
+        c2w.append(e)
+    clipmod.write_clip(out, serve=list(range(N)), K=[v.K for v in views], c2w=c2w, width=W, height=H, fps=24,
+                       camera_static=info.camera_static, scene_static=True, units="arbitrary",
+                       producer={"stage": "phi"}, content_id="est")
+
+
+@pytest.mark.parametrize("static", [False, True])
+def test_known_similarity_is_undone(tmp_path, static):
+    _gt_clip(tmp_path / "gt", static)
+    R, t, s = _rot([0.3, -0.5, 0.8], 1.1), np.array([0.4, -2.0, 0.7]), 3.7
+    _transformed(tmp_path / "gt", tmp_path / "est", R, t, s, depth_extra=1.3)
+    man = align.align_clip(tmp_path / "est", tmp_path / "gt", tmp_path / "al")
+    assert man["units"] == "metres" and man["producer"]["stage"] == "align"
+    va, _ = clipmod.read_clip(tmp_path / "al")
+    vg, _ = clipmod.read_clip(tmp_path / "gt")
+    for a, g in zip(va, vg):
+        np.testing.assert_allclose(a.c2w, g.c2w, atol=1e-4)
+        ok = np.isfinite(g.buffers.depth)
+        np.testing.assert_allclose(a.buffers.depth[ok], g.buffers.depth[ok], rtol=1e-4)
+        np.testing.assert_allclose(a.buffers.normal, g.buffers.normal, atol=1e-4)
+
+
+def test_per_pixel_errors_survive_alignment(tmp_path):
+    """Align removes one similarity and one depth scale, never local errors."""
+    _gt_clip(tmp_path / "gt")
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, 0.05, (N, H, W)).astype(np.float32)
+    R, t, s = _rot([0, 0, 1], 0.7), np.array([1.0, 2.0, 0.0]), 0.5
+    _transformed(tmp_path / "gt", tmp_path / "est", R, t, s, noise=noise)
+    align.align_clip(tmp_path / "est", tmp_path / "gt", tmp_path / "al")
+    va, _ = clipmod.read_clip(tmp_path / "al")
+    vg, _ = clipmod.read_clip(tmp_path / "gt")
+    for i, (a, g) in enumerate(zip(va, vg)):
+        ok = np.isfinite(g.buffers.depth)
+        rel = a.buffers.depth[ok] / g.buffers.depth[ok] - 1
+        k = np.median(1 + noise[i][ok])
+        np.testing.assert_allclose(1 + rel, (1 + noise[i][ok]) / np.median(1 + noise), rtol=2e-3)
+        assert np.std(rel) == pytest.approx(np.std(noise[i][ok]) / k, rel=0.05)
+
+
+def test_align_rejects_mismatched_clips(tmp_path):
+    _gt_clip(tmp_path / "gt")
+    views, _ = clipmod.read_clip(tmp_path / "gt")
+    clipmod.write_clip(tmp_path / "gt", serve=[0, 1, 2], K=[v.K for v in views[:3]], c2w=[v.c2w for v in views[:3]],
+                       width=W, height=H, fps=24, camera_static=False, scene_static=True, units="metres",
+                       producer={}, content_id="x")
+    _gt_clip(tmp_path / "gt2")
+    _transformed(tmp_path / "gt2", tmp_path / "est", np.eye(3), np.zeros(3), 1.0)
+    with pytest.raises(io.DataError, match="frames"):
+        align.align_clip(tmp_path / "est", tmp_path / "gt", tmp_path / "al")
+
+
+def test_skipped_clip_reads_as_one_line_error(tmp_path):
+    clipmod.write_skipped(tmp_path / "c", "structure from motion registered 2/17 frames")
+    assert clipmod.is_skipped(tmp_path / "c").startswith("structure from motion")
+    with pytest.raises(io.DataError, match="left out"):
+        clipmod.read_clip(tmp_path / "c")
+
+
+def test_up_rotation_takes_the_vector_to_z():
+    for up in ([0, 0, 1], [0, 0, -1], [1, 2, 3], [0.01, -1, 0.2]):
+        Q = up_rotation(np.array(up, float))
+        np.testing.assert_allclose(Q @ (np.array(up) / np.linalg.norm(up)), [0, 0, 1], atol=1e-12)
+        np.testing.assert_allclose(Q @ Q.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(Q) == pytest.approx(1.0)
+
+
+def test_normals_from_depth_of_a_plane():
+    K = syn.intrinsics(W, H, 0.9)
+    c2w = syn.look_at([0, -3, 2], [0, 0, 0])
+    b = syn.raycast_buffers(K, c2w, W, H, [], syn.Ground())
+    n_cam = normals_from_depth(np.where(np.isfinite(b.depth), b.depth, 1.0), K)
+    n_world = n_cam @ c2w[:3, :3].T
+    inner = n_world[2:-2, 2:-2][np.isfinite(b.depth[2:-2, 2:-2])]
+    np.testing.assert_allclose(inner, np.broadcast_to([0, 0, 1], inner.shape), atol=1e-4)
+
+
+def test_depth_scales_follow_sfm_points_and_fill_gaps():
+    from lightcrafter.recon.cameras import CameraTrack
+
+    n, h, w = 5, 8, 8
+    depth = np.full((n, h, w), 2.0)
+    uv = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1).reshape(-1, 2).astype(float)
+    pts, obs = [], []
+    c2w = np.repeat(np.eye(4)[None], n, 0)
+    truth = [3.0, 3.0, None, 3.3, 3.0]  # frame 2 sees too few points
+    for i, s in enumerate(truth):
+        if s is None:
+            obs.append((np.zeros((0, 2)), np.zeros(0, np.int64)))
+            continue
+        ids = np.arange(len(pts), len(pts) + len(uv))
+        pts += [[0.0, 0.0, 2.0 * s]] * len(uv)
+        obs.append((uv, ids))
+    tr = CameraTrack(K=np.repeat(np.eye(3)[None], n, 0), c2w=c2w, registered=np.ones(n, bool),
+                     points=np.array(pts), observations=obs, static=False)
+    s = depth_scales(tr, depth, min_points=4)
+    np.testing.assert_allclose(s, [3.0, 3.0, 3.0, 3.0, 3.0])  # gap filled, the 3.3 outlier removed by the median
+
+
+def test_estimator_forward_shapes_and_units():
+    import torch
+
+    from lightcrafter.recon.estimator import GBufferNet, predict
+
+    torch.manual_seed(0)
+    m = GBufferNet([8, 16, 16])
+    p = predict(m, np.random.default_rng(0).random((2, 32, 48, 3)).astype(np.float32))
+    assert p["depth"].shape == (2, 32, 48) and (p["depth"] > 0).all()
+    np.testing.assert_allclose(np.linalg.norm(p["normal_cam"], axis=-1), 1.0, atol=1e-5)
+    for k in ("albedo", "roughness", "metallic", "mask"):
+        assert p[k].min() >= 0 and p[k].max() <= 1
+    with pytest.raises(ValueError, match="multiples of 4"):
+        m(torch.zeros(1, 3, 30, 48))
+
+
+def test_estimator_learns_a_clip(tmp_path):
+    """A few hundred steps on one clip beat the untrained network on its depth and normals."""
+    from lightcrafter.recon import estimator as est
+
+    _gt_clip(tmp_path / "gt")
+    views, _ = clipmod.read_clip(tmp_path / "gt")
+    samples, val = [], []
+    for v in views:
+        rgb = np.clip(v.buffers.albedo * (0.3 + 0.7 * np.clip(v.buffers.normal[..., 2:], 0, 1)), 0, 1)
+        rgb = np.where(v.buffers.mask[..., None] > 0, rgb, 0.8)
+        samples.append(est.sample_from(rgb, v.buffers, v.c2w))
+        val.append((rgb, v.buffers, v.c2w))
+    cfg = est.EstimatorConfig(widths=[8, 16, 16], steps=150, batch=4, crop=None, eval_every=150, lr=3e-3, threads=1)
+    untrained = est._validation_errors(est.GBufferNet(cfg.widths), val)
+    _, curve = est.train_estimator(samples, val, cfg, log=lambda m: None)
+    assert curve[-1]["normal_deg"] < 0.7 * untrained["normal_deg"]
+    assert curve[-1]["mask_iou"] > 0.9
+
+
+def test_static_detection_survives_a_rotating_light():
+    """A fixed camera whose lighting changes between frames is static; a panning one is not."""
+    from lightcrafter.recon.cameras import median_motion_px
+
+    rng = np.random.default_rng(1)
+    tex = (rng.random((80, 120)) > 0.5).astype(np.float32)
+    import cv2
+
+    tex = cv2.GaussianBlur(tex, (0, 0), 1.0)
+    frames_static, frames_pan = [], []
+    for i in range(5):
+        shade = 0.4 + 0.5 * np.clip(np.sin(np.linspace(0, 3, 120)[None, :] + i), 0, 1)  # moving shading
+        frames_static.append(np.repeat((tex * shade * 255)[..., None], 3, -1).astype(np.uint8)[:64, :96])
+        frames_pan.append(np.repeat((tex * 200)[..., None], 3, -1).astype(np.uint8)[:64, 3 * i:3 * i + 96])
+    assert median_motion_px(np.stack(frames_static)) < 0.5
+    assert median_motion_px(np.stack(frames_pan)) > 2.0
