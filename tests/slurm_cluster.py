@@ -130,6 +130,7 @@ class LocalSlurm:
     """
 
     def __init__(self, root: Path | None = None, cpus: int | None = None, mem_mb: int | None = None):
+        self._own_root = root is None  # a temporary folder of our own is removed on stop
         self.root = Path(root) if root else Path(tempfile.mkdtemp(prefix="lc-slurm-"))
         self.root.mkdir(parents=True, exist_ok=True)
         os.chmod(self.root, 0o755)
@@ -310,6 +311,8 @@ PartitionName={PARTITIONS[1]} Nodes={self.node} MaxTime=INFINITE State=UP
         if self._lock_fd is not None:
             os.close(self._lock_fd)  # releases the flock
             self._lock_fd = None
+        if self._own_root and self.root.exists():
+            shutil.rmtree(self.root, ignore_errors=True)
 
     def __enter__(self):
         return self.start()
@@ -337,7 +340,7 @@ PartitionName={PARTITIONS[1]} Nodes={self.node} MaxTime=INFINITE State=UP
 
 
 if __name__ == "__main__":  # manual check: start, run one job on each partition, stop
-    with LocalSlurm() as cluster:
+    with LocalSlurm() as cluster:  # its temporary folder is removed on exit
         print(f"install {cluster.install_seconds:.1f} s, start {cluster.start_seconds:.1f} s, root {cluster.root}")
         print(_run(["sinfo"]).stdout)
         for extra in ([], ["-p", "gpu", "--gpus=1"]):
