@@ -44,7 +44,11 @@ rule pairs:
 
 rule ablations:
     input:
-        [L.eval_metrics(v, b) for v in ("full", "no_real", "no_synthetic", "clean_buffers") for b in BENCHMARKS],
+        [
+            L.eval_metrics(v, b)
+            for v in ("full", "no_real", "no_synthetic", "clean_buffers")
+            for b in BENCHMARKS
+        ],
 
 
 rule all:

@@ -52,8 +52,14 @@ class Layout:
         """Phi's clip of a synthetic trajectory (kind 'synthetic', clip '{scene}_{traj}') or a real clip."""
         return self._p("recon", kind, clip)
 
+    def recon_clip_manifest(self, kind, clip) -> str:
+        return self._p("recon", kind, clip, "buffers.json")
+
     def aligned_clip(self, scene, traj) -> str:
         return self._p("aligned", scene, traj)
+
+    def aligned_clip_manifest(self, scene, traj) -> str:
+        return self._p("aligned", scene, traj, "buffers.json")
 
     # proxies rendered by R
     def proxy_gt(self, scene, traj, light) -> str:
@@ -70,6 +76,10 @@ class Layout:
 
     def envfit(self, clip) -> str:
         return self._p("envfit", clip)
+
+    def envfit_lighting(self, clip) -> str:
+        """The fitted source lighting of a real clip (lightcrafter.lighting/1 file)."""
+        return self._p("envfit", clip, "lighting.json")
 
     def pseudo_input(self, clip) -> str:
         """R(S, L_hat_source) of a real clip: the proxy of a real pseudo-pair."""
@@ -90,6 +100,9 @@ class Layout:
 
     def refined(self, variant, bench) -> str:
         return self._p("refined", variant, bench)
+
+    def refined_manifest(self, variant, bench) -> str:
+        return self._p("refined", variant, bench, "manifest.json")
 
     def eval_metrics(self, variant, bench) -> str:
         return self._p("eval", variant, bench, "metrics.json")

@@ -54,11 +54,25 @@ def main() -> int:
                 raise io.DataError("--estimator is required by the default backend")
             m = reconstruct_default(frames, out, estimator_path=a.estimator, fps=a.fps, scene_static=bool(a.scene_static),
                                     settings=DefaultSettings.from_dict(settings), name=name, extra={"clip_id": name})
-        else:
-            from lightcrafter.recon.paper_stack import reconstruct_paper_stack
+        else:  # the paper's stack: 8-bit frames in, its clip on MegaSAM's grid, then onto the video's grid
+            import shutil
 
-            m = reconstruct_paper_stack(frames, out, settings.pop("commands", {}), scene_static=bool(a.scene_static),
-                                        fps=a.fps, clip_id=name, **settings)
+            from lightcrafter.recon.default import read_video_frames
+            from lightcrafter.recon.paper_stack import reconstruct_paper_stack
+            from lightcrafter.recon.resample import onto_video_grid
+
+            _, u8 = read_video_frames(frames)
+            png = out / ".work" / "frames"
+            png.mkdir(parents=True, exist_ok=True)
+            import imageio.v3 as iio
+
+            for i, f in enumerate(u8):
+                iio.imwrite(png / f"{i:05d}.png", f)
+            reconstruct_paper_stack(png, out / "tool_grid", settings.pop("commands", {}), scene_static=bool(a.scene_static),
+                                    fps=a.fps, clip_id=name, work_dir=out / ".work", **settings)
+            m = onto_video_grid(out / "tool_grid", out, u8.shape[2], u8.shape[1])
+            if (out / "tool_grid" / "envmap_init.exr").is_file():
+                shutil.copyfile(out / "tool_grid" / "envmap_init.exr", out / "envmap_init.exr")
     except ReconstructionError as exc:
         if not a.skip_failed:
             print(f"reconstruct: {exc}", file=sys.stderr)

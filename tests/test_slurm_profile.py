@@ -154,7 +154,7 @@ def test_dry_run_with_the_profile_assigns_partitions_and_gpus():
     res = subprocess.run(
         [sys.executable, "-m", "snakemake", "-n", "--workflow-profile", str(PROFILE.parent),
          "--configfile", str(REPO / "config" / "ci.yaml"), "-d", tempfile.mkdtemp(prefix="dag-"),
-         "results/eval/clean_buffers/metrics.json"],
+         "results/eval/clean_buffers/synthetic/metrics.json"],
         cwd=REPO, capture_output=True, text=True, timeout=300, env=venv_env(),
     )
     assert res.returncode == 0, res.stderr[-3000:]

@@ -12,14 +12,17 @@ import yaml
 from lightcrafter import scenes
 from workflow_util import REPO, dry_run, dry_run_outputs, job_counts, venv_env
 
-def expected_gt_counts(cfg):
+def _plans(cfg):
     s = cfg["scenes"]
-    plans = [scenes.plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
-    trajs = [t for p in plans for t in p["trajectories"]]
+    return [scenes.plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
+
+
+def expected_gt_counts(cfg):
+    trajs = [t for p in _plans(cfg) for t in p["trajectories"]]
     return {
         "generate_assets": 1 if cfg["assets"]["source"] == "procedural" else 0,
         "curate_assets": 1,
-        "sample_scene": s["count"],
+        "sample_scene": cfg["scenes"]["count"],
         "render_buffers": len(trajs),
         "render_rgb": sum(len(t["render_lights"]) for t in trajs),
     }
@@ -31,8 +34,9 @@ def test_default_config_ground_truth_counts(default_config):
     counts = job_counts(res.stdout)
     exp = expected_gt_counts(default_config)
     assert {k: counts.get(k, 0) for k in exp} == exp
-    # The default: 4 scenes x 3 trajectories, each using 2 of 4 lightings.
-    assert counts["render_buffers"] == 12 and counts["render_rgb"] == 24
+    # The default: 6 scenes x 3 trajectories; train/test trajectories use 2 of 4 lightings, the 2 recon
+    # scenes (reconstruction-stack training data) only their source lighting.
+    assert counts["render_buffers"] == 18 and counts["render_rgb"] == 4 * 3 * 2 + 2 * 3
     # Nothing beyond ground truth is pulled in by this target.
     assert set(counts) == set(exp) | {"ground_truth", "summarize_ground_truth"}
 
@@ -45,42 +49,77 @@ def test_paper_config_counts_and_dag_build_time(paper_config):
     counts = job_counts(res.stdout)
     assert counts["sample_scene"] == 400
     assert counts["render_buffers"] == 400 * 3
-    assert counts["render_rgb"] == 400 * 3 * 4  # 1 source + 3 targets: every lighting is used
+    # train/test: 1 source + 3 targets = every lighting; recon (40 scenes): the source only
+    assert counts["render_rgb"] == 360 * 3 * 4 + 40 * 3
     print(f"paper-config dry run: {sum(counts.values())} jobs in {seconds:.1f} s")
 
 
-def refiner_expected_counts(cfg):
-    """The clean_buffers evaluation needs train/test scenes only, and only target lightings."""
-    s = cfg["scenes"]
-    plans = [scenes.plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
-    used = [p for p in plans if p["split"] in ("train", "test")]
-    trajs = [t for p in used for t in p["trajectories"]]
-    targets = sum(len(t["target_lights"]) for t in trajs)
-    return {"generate_assets": 1, "curate_assets": 1, "sample_scene": len(used), "render_buffers": len(trajs),
-            "render_rgb": targets, "render_proxy_gt": targets, "dataset_clean_buffers": 1, "train_refiner": 1,
-            "infer_refiner": 1, "evaluate_refiner": 1}
+def _split_counts(cfg):
+    plans = _plans(cfg)
+    by = {sp: [p for p in plans if p["split"] == sp] for sp in ("train", "test", "recon")}
+    trajs = {sp: [t for p in ps for t in p["trajectories"]] for sp, ps in by.items()}
+    return by, trajs
 
 
 @pytest.mark.parametrize("configfile", [None, "config/paper.yaml"])
-def test_clean_buffers_evaluation_pulls_only_what_it_needs(default_config, paper_config, configfile):
+def test_clean_buffers_training_needs_no_reconstruction(default_config, paper_config, configfile):
     cfg = paper_config if configfile else default_config
-    res = dry_run("results/eval/clean_buffers/metrics.json", configfile=configfile)
+    res = dry_run("results/refiner/clean_buffers/model.pt", configfile=configfile)
     assert res.returncode == 0, res.stderr[-2000:]
     counts = job_counts(res.stdout)
-    exp = refiner_expected_counts(cfg)
-    assert counts == exp
-    # Source-lighting radiance and recon-split scenes are not needed by this target.
-    all_rgb = sum(len(t["render_lights"]) for i in range(cfg["scenes"]["count"])
-                  for t in scenes.plan_scene(cfg["scenes"], cfg["seed"], i)["trajectories"])
-    assert counts["render_rgb"] < all_rgb
+    by, trajs = _split_counts(cfg)
+    targets = sum(len(t["target_lights"]) for t in trajs["train"])
+    assert counts == {"generate_assets": 1, "curate_assets": 1, "sample_scene": len(by["train"]),
+                      "render_buffers": len(trajs["train"]), "render_rgb": targets, "render_proxy_gt": targets,
+                      "dataset": 1, "train_refiner": 1}
 
 
-@pytest.mark.parametrize("variant", ["full", "no_real", "no_synthetic"])
-def test_variants_without_data_stages_cannot_be_requested(variant):
-    res = dry_run(f"results/eval/{variant}/metrics.json")
+def test_no_real_schedules_no_real_video_job(default_config):
+    counts = job_counts(dry_run("results/refiner/no_real/model.pt").stdout)
+    by, trajs = _split_counts(default_config)
+    for rule in ("ingest_video", "reconstruct_real", "fit_envmap", "render_pseudo_input", "render_proxy_gt"):
+        assert rule not in counts, rule
+    # Phi once per train trajectory (on its source video), not once per target light
+    assert counts["reconstruct_synthetic"] == counts["align_synthetic"] == len(trajs["train"])
+    assert counts["render_proxy"] == sum(len(t["target_lights"]) for t in trajs["train"])
+    assert counts["train_gbuffer_estimator"] == 1
+
+
+def test_no_synthetic_trains_without_synthetic_pairs(default_config):
+    counts = job_counts(dry_run("results/refiner/no_synthetic/model.pt").stdout)
+    by, trajs = _split_counts(default_config)
+    for rule in ("reconstruct_synthetic", "align_synthetic", "render_proxy", "render_proxy_gt"):
+        assert rule not in counts, rule
+    # only the recon split's source videos and buffers (the estimator that Phi runs on real clips)
+    assert counts["render_rgb"] == len(trajs["recon"]) and counts["render_buffers"] == len(trajs["recon"])
+    from lightcrafter.ingest import real_clips
+
+    n_train_real = sum(c["split"] == "train" for c in real_clips(default_config["real"]).values())
+    assert counts["ingest_video"] == counts["reconstruct_real"] == counts["fit_envmap"] == n_train_real
+
+
+def test_no_synthetic_evaluation_renders_only_the_test_scenes(default_config):
+    """Its synthetic benchmark needs the test scenes (and the recon split for the estimator), never train scenes."""
+    counts = job_counts(dry_run("results/eval/no_synthetic/synthetic/metrics.json").stdout)
+    by, trajs = _split_counts(default_config)
+    assert counts["reconstruct_synthetic"] == len(trajs["test"])
+    assert counts["sample_scene"] == len(by["test"]) + len(by["recon"])
+    assert counts["render_rgb"] == sum(len(t["render_lights"]) for t in trajs["test"]) + len(trajs["recon"])
+
+
+def test_ablations_target_trains_and_scores_every_variant(default_config):
+    counts = job_counts(dry_run("ablations").stdout)
+    assert counts["train_refiner"] == 4 and counts["dataset"] == 4
+    assert counts["infer_refiner"] == counts["evaluate_refiner"] == 4 * 2  # synthetic and real benchmarks
+    assert counts["benchmark_pairs"] == 2
+
+
+@pytest.mark.parametrize("variant", ["synthetic", "clean", "full_real"])
+def test_unknown_variants_cannot_be_requested(variant):
+    res = dry_run(f"results/eval/{variant}/synthetic/metrics.json")
     assert res.returncode != 0
     out = res.stdout + res.stderr
-    assert "MissingRuleException" in out and f"results/eval/{variant}/metrics.json" in out, out[-1500:]
+    assert "MissingRuleException" in out, out[-1500:]
 
 
 def test_single_rgb_target_pulls_only_its_chain(default_config):

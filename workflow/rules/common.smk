@@ -27,7 +27,11 @@ _PLANS = {sid: plan_scene(config["scenes"], SEED, i) for i, sid in enumerate(SCE
 REAL = real_clips(config.get("real", {}))
 # Dataset variants trained by the default target (each one of lightcrafter.datasets.VARIANTS).
 DATASET_VARIANTS = list(config["datasets"]["variants"])
-BENCHMARKS = [b for b in ds.BENCHMARKS if b != "real" or any(c["split"] == "test" for c in REAL.values())]
+BENCHMARKS = [
+    b
+    for b in ds.BENCHMARKS
+    if b != "real" or any(c["split"] == "test" for c in REAL.values())
+]
 
 
 wildcard_constraints:
@@ -125,13 +129,35 @@ def manifest_stem(wildcards, output):
 
 # ----------------------------------------------------------------------------- reconstruction
 def recon_settings():
-    """The default backend's settings (lightcrafter.recon.default.DefaultSettings) from config."""
+    """The backend's settings: lightcrafter.recon.default.DefaultSettings, or the paper stack's
+    commands and options (lightcrafter.recon.paper_stack), from config."""
     r = config["recon"]
+    if r.get("backend", "default") == "paper_stack":
+        return dict(r.get("paper_stack", {}))
     return {
         "fov_x_deg": r.get("fov_x_deg") or config["scenes"]["fov_x_deg"],
         "normals": r.get("normals", "predicted"),
         "sfm": r.get("sfm", {}),
     }
+
+
+def estimator_input(wildcards):
+    """The G-buffer estimator, needed by the default backend only."""
+    return (
+        L.estimator() if config["recon"].get("backend", "default") == "default" else []
+    )
+
+
+def estimator_arg(wildcards, input):
+    return f"--estimator {input.estimator}" if input.estimator else ""
+
+
+def recon_backend_args():
+    """Command-line arguments selecting the backend of Phi (and its settings)."""
+    backend = config["recon"].get("backend", "default")
+    if backend == "paper_stack":
+        return f"--backend paper_stack"
+    return "--backend default"
 
 
 def recon_clip_id(wildcards):
@@ -235,7 +261,15 @@ def results_root(wildcards, output):
 def real_recon_settings(wildcards):
     """Phi's settings for a real clip: the video's own field-of-view prior."""
     c = REAL[wildcards.clip]
-    return as_json(dict(recon_settings(), fov_x_deg=c["fov_x_deg"], camera="static" if c["camera_static"] else "auto"))
+    if config["recon"].get("backend", "default") == "paper_stack":
+        return as_json(recon_settings())
+    return as_json(
+        dict(
+            recon_settings(),
+            fov_x_deg=c["fov_x_deg"],
+            camera="static" if c["camera_static"] else "auto",
+        )
+    )
 
 
 def real_scene_static(wildcards):
@@ -249,10 +283,14 @@ def manifest_stem_of_input(wildcards, input):
 
 def synthetic_recon_inputs(wildcards):
     """Phi clips, aligned clips and ground truth of every train/test trajectory, and real clips."""
-    trajs = [(s, t["id"]) for s in scenes_in_split("train", "test") for t in _PLANS[s]["trajectories"]]
+    trajs = [
+        (s, t["id"])
+        for s in scenes_in_split("train", "test")
+        for t in _PLANS[s]["trajectories"]
+    ]
     return {
-        "est": [L.recon_clip("synthetic", f"{s}_{t}") + "/buffers.json" for s, t in trajs],
-        "aligned": [L.aligned_clip(s, t) + "/buffers.json" for s, t in trajs],
+        "est": [L.recon_clip_manifest("synthetic", f"{s}_{t}") for s, t in trajs],
+        "aligned": [L.aligned_clip_manifest(s, t) for s, t in trajs],
         "gt": [L.gt_clip_manifest(s, t) for s, t in trajs],
-        "real": [L.recon_clip("real", c) + "/buffers.json" for c in REAL],
+        "real": [L.recon_clip_manifest("real", c) for c in REAL],
     }

@@ -32,9 +32,9 @@ rule ingest_video:
 rule reconstruct_real:
     input:
         video=L.real_frames("{clip}") + ".json",
-        estimator=L.estimator(),
+        estimator=estimator_input,
     output:
-        clip=L.recon_clip("real", "{clip}") + "/buffers.json",
+        clip=L.recon_clip_manifest("real", "{clip}"),
     log:
         "logs/recon/real_{clip}.log",
     benchmark:
@@ -47,22 +47,25 @@ rule reconstruct_real:
         runtime=30,
     params:
         script=script_path("reconstruct.py"),
+        backend=recon_backend_args(),
+        estimator=estimator_arg,
         out_dir=parent_dir,
         settings=real_recon_settings,
         static=real_scene_static,
         skip="--skip-failed" if config["recon"].get("skip_failed", True) else "",
     shell:
-        "python {params.script} --frames {input.video} --out {params.out_dir} --estimator {input.estimator} "
+        "python {params.script} --frames {input.video} --out {params.out_dir} {params.backend} "
+        "{params.estimator} "
         "--scene-static {params.static} --settings-json {params.settings:q} --name {wildcards.clip} "
         "{params.skip} > {log} 2>&1"
 
 
 rule fit_envmap:
     input:
-        clip=L.recon_clip("real", "{clip}") + "/buffers.json",
+        clip=L.recon_clip_manifest("real", "{clip}"),
         video=L.real_frames("{clip}") + ".json",
     output:
-        lighting=L.envfit("{clip}") + "/lighting.json",
+        lighting=L.envfit_lighting("{clip}"),
     log:
         "logs/envfit/{clip}.log",
     benchmark:
@@ -85,8 +88,8 @@ rule fit_envmap:
 
 rule render_pseudo_input:
     input:
-        clip=L.recon_clip("real", "{clip}") + "/buffers.json",
-        lighting=L.envfit("{clip}") + "/lighting.json",
+        clip=L.recon_clip_manifest("real", "{clip}"),
+        lighting=L.envfit_lighting("{clip}"),
     output:
         manifest=L.pseudo_input("{clip}") + ".json",
     log:

@@ -39,7 +39,7 @@ rule render_proxy_gt:
 
 rule render_proxy:
     input:
-        clip=L.aligned_clip("{scene}", "{traj}") + "/buffers.json",
+        clip=L.aligned_clip_manifest("{scene}", "{traj}"),
         scene=L.scene_spec("{scene}"),
     output:
         manifest=L.proxy("{scene}", "{traj}", "{light}") + ".json",

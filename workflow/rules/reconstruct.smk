@@ -30,9 +30,9 @@ rule train_gbuffer_estimator:
 rule reconstruct_synthetic:
     input:
         video=source_video,
-        estimator=L.estimator(),
+        estimator=estimator_input,
     output:
-        clip=L.recon_clip("synthetic", "{scene}_{traj}") + "/buffers.json",
+        clip=L.recon_clip_manifest("synthetic", "{scene}_{traj}"),
     log:
         "logs/recon/synthetic_{scene}_{traj}.log",
     benchmark:
@@ -45,23 +45,26 @@ rule reconstruct_synthetic:
         runtime=30,
     params:
         script=script_path("reconstruct.py"),
+        backend=recon_backend_args(),
+        estimator=estimator_arg,
         out_dir=parent_dir,
         fps=config["scenes"]["fps"],
         static=scene_static_flag,
         settings=as_json(recon_settings()),
         skip="--skip-failed" if config["recon"].get("skip_failed", True) else "",
     shell:
-        "python {params.script} --frames {input.video} --out {params.out_dir} --estimator {input.estimator} "
+        "python {params.script} --frames {input.video} --out {params.out_dir} {params.backend} "
+        "{params.estimator} "
         "--fps {params.fps} --scene-static {params.static} --settings-json {params.settings:q} "
         "--name {wildcards.scene}_{wildcards.traj} {params.skip} > {log} 2>&1"
 
 
 rule align_synthetic:
     input:
-        est=L.recon_clip("synthetic", "{scene}_{traj}") + "/buffers.json",
+        est=L.recon_clip_manifest("synthetic", "{scene}_{traj}"),
         gt=L.gt_clip_manifest("{scene}", "{traj}"),
     output:
-        clip=L.aligned_clip("{scene}", "{traj}") + "/buffers.json",
+        clip=L.aligned_clip_manifest("{scene}", "{traj}"),
     log:
         "logs/recon/align_{scene}_{traj}.log",
     benchmark:

@@ -32,7 +32,7 @@ rule infer_refiner:
         model=L.refiner_model("{variant}"),
         pairs=L.benchmark_pairs("{bench}"),
     output:
-        manifest=L.refined("{variant}", "{bench}") + "/manifest.json",
+        manifest=L.refined_manifest("{variant}", "{bench}"),
     log:
         "logs/refiner/infer_{variant}_{bench}.log",
     benchmark:
@@ -55,7 +55,7 @@ rule infer_refiner:
 rule evaluate_refiner:
     input:
         pairs=L.benchmark_pairs("{bench}"),
-        refined=L.refined("{variant}", "{bench}") + "/manifest.json",
+        refined=L.refined_manifest("{variant}", "{bench}"),
     output:
         metrics=L.eval_metrics("{variant}", "{bench}"),
     log:

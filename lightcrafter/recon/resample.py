@@ -1,0 +1,66 @@
+"""Put a clip onto another pixel grid of the same camera (e.g. the paper stack's MegaSAM working grid
+back onto the video's grid), so that R renders proxies the size of their targets.
+
+The grids are related by an axis-aligned map (a resize and a crop; lightcrafter.recon.paper_stack.
+megasam.PixelMap): target pixel (x, y) sits at (sx x + ox, sy y + oy) in the source grid. Buffers are
+sampled at the nearest source pixel (depth, normals and materials of one surface point stay
+together; nothing is interpolated across a depth edge); target pixels outside the source grid are
+invalid (mask 0). Intrinsics: K_target = A^-1 K_source with A = [[sx, 0, ox], [0, sy, oy], [0, 0, 1]].
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lightcrafter import clip as clipmod
+from lightcrafter import io
+
+
+def resample_buffers(b: io.Buffers, x: np.ndarray, y: np.ndarray) -> io.Buffers:
+    h, w = b.shape
+    xi, yi = np.rint(x).astype(int), np.rint(y).astype(int)
+    inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    xi, yi = np.clip(xi, 0, w - 1), np.clip(yi, 0, h - 1)
+    take = lambda a: a[yi, xi]  # noqa: E731
+    mask = take(b.mask) * inside
+    valid = mask > 0.5
+    return io.Buffers(depth=np.where(valid, take(b.depth), np.inf).astype(np.float32),
+                      normal=np.where(valid[..., None], take(b.normal), 0.0).astype(np.float32),
+                      albedo=np.where(valid[..., None], take(b.albedo), 0.0).astype(np.float32),
+                      roughness=np.where(valid, take(b.roughness), 0.0).astype(np.float32),
+                      metallic=np.where(valid, take(b.metallic), 0.0).astype(np.float32),
+                      mask=valid.astype(np.float32))
+
+
+def onto_grid(src_clip, out_clip, width: int, height: int, sx: float, ox: float, sy: float, oy: float) -> dict:
+    """Write ``out_clip``: ``src_clip`` sampled onto a ``width`` x ``height`` grid (see module docstring)."""
+    views, info = clipmod.read_clip(src_clip)
+    xs = sx * np.arange(width, dtype=np.float64) + ox
+    ys = sy * np.arange(height, dtype=np.float64) + oy
+    X, Y = np.meshgrid(xs, ys)
+    A = np.array([[sx, 0.0, ox], [0.0, sy, oy], [0.0, 0.0, 1.0]])
+    inputs = {"what": "resampled", "src": clipmod.identity(info.root), "grid": [width, height, sx, ox, sy, oy]}
+    frames = clipmod.buffer_frames(out_clip, inputs)
+    distinct = info.distinct_frames
+    for i in frames.missing(distinct, io.read_buffers):
+        frames.stamp()
+        io.write_buffers(frames.path(i), resample_buffers(views[i].buffers, X, Y))
+    serve = [distinct[[info.frames[d] for d in distinct].index(rel)] for rel in info.frames]
+    keep = {k: v for k, v in info.manifest.items() if k not in (
+        "format", "width", "height", "num_frames", "fps", "buffer_frames", "frames", "cameras", "confidence",
+        "camera_static", "scene_static", "units", "producer", "content_id")}
+    return clipmod.write_clip(
+        out_clip, serve=serve, K=[np.linalg.inv(A) @ v.K for v in views], c2w=[v.c2w for v in views],
+        width=width, height=height, fps=info.fps, camera_static=info.camera_static, scene_static=info.scene_static,
+        units=info.units, producer={"stage": "resample", "source": info.producer}, content_id=io.fingerprint(inputs),
+        extra=keep)
+
+
+def onto_video_grid(tool_clip, out_clip, video_width: int, video_height: int) -> dict:
+    """The paper stack's clip (MegaSAM's working grid for a video of this size) onto the video's grid."""
+    from lightcrafter.recon.paper_stack.megasam import working_map
+
+    m = working_map(video_width, video_height)
+    return onto_grid(tool_clip, out_clip, video_width, video_height, m.sx, m.ox, m.sy, m.oy)
