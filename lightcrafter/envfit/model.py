@@ -1,0 +1,201 @@
+"""The envmap-fitting objective shared by both solvers (torch, CPU): parameters, map head, TV, loss.
+
+Parameters (the paper's appendix, "Real-World Video Pseudo-Pairs")
+-----------------------------------------------------------------
+* ``log_map`` (He, We, 3): natural log of a lat-long linear HDR map (default 64 x 128), in the
+  :mod:`lightcrafter.envmap` convention (row 0 = zenith, u = (pi - atan2(y, x)) / 2 pi).
+* ``yaw`` (radians, about world +Z), ``pitch`` (radians, about world +Y), ``exposure`` (EV, base 2).
+
+Map head (what the renderer sees, "exponentiated at the renderer call site")::
+
+    L = 2**exposure * rotate(exp(log_map), yaw, pitch)
+
+where ``rotate`` is :func:`lightcrafter.envmap.rotate` written in torch: each output texel with
+lookup direction d takes the bilinear (horizontal wrap, vertical clamp) value of the input at
+R^T d, R = rot_y(pitch) rot_z(yaw); so ``envmap.apply_exposure(envmap.rotate(exp(log_map), yaw,
+pitch), exposure)`` equals :func:`env_from_params` (tests check it), and the fitted map is written
+*baked* (L itself) in the world frame. Gradients reach yaw/pitch through the bilinear weights.
+
+Objective (the paper's eq. envmap_opt with the appendix's TV; Reinhard per colour channel on
+linear radiance, T(x) = x / (1 + x))::
+
+    J(L) = sum_{i in fitted} sum_{p, c} | T(R_i(L))_{p,c} - T(I_i)_{p,c} |  +  lambda_TV * TV(log_map)
+
+The data term is the L1 *norm* (sum over the used pixels p and channels c of every fitted frame
+i); an iteration estimates it from one frame drawn uniformly, F * 3 * P_i * mean_{p,c}|...| over the
+frame's P_i used pixels (or a uniform sample of them), which is unbiased. TV is the paper's eq.
+(tv): a sum over texels (and the three channels) of the absolute forward differences of
+``log_map`` along u (with wrap-around, u = We wraps to 0) and along v (no wrap).
+
+Why the sum and not a per-pixel mean: with the mean, lambda_TV = 1e-3 outweighs the data by two
+to three orders of magnitude (the true map of the synthetic benchmark scene has lambda TV = 0.89
+against a mean data term of 0.003) and nothing but a near-constant map emerges, contradicting the
+paper's "low-frequency directional structure (sun position, sky-vs-floor gradient) emerges";
+with the sum, TV only decides texels the data barely constrain (speckles). The mean is available
+as ``data_reduction='mean'`` (FitSettings).
+
+Zero radiance in log space: a map given for initialisation is floored at
+``LOG_FLOOR_REL * mean(map)`` (1e-6 of its mean, i.e. 13.8 nats below it) before the log, so a
+black texel becomes a finite, very dark one; an all-zero map cannot be floored and is a DataError.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from lightcrafter import envmap
+from lightcrafter.io import DataError
+
+LOG_FLOOR_REL = 1e-6
+
+
+def reinhard(x):
+    """Reinhard tonemap x / (1 + x) (torch or numpy), per channel, x >= 0 linear radiance."""
+    return x / (1.0 + x)
+
+
+def tv_log(log_map: torch.Tensor) -> torch.Tensor:
+    """Paper eq. (tv) on a (H, W, C) log map: sum |L[v, u+1] - L[v, u]| (u wraps) + |L[v+1, u] - L[v, u]|."""
+    du = torch.roll(log_map, shifts=-1, dims=1) - log_map  # u = W - 1 pairs with u = 0
+    dv = log_map[1:] - log_map[:-1]
+    return du.abs().sum() + dv.abs().sum()
+
+
+def l1_tonemapped(pred: torch.Tensor, obs_tonemapped: torch.Tensor) -> torch.Tensor:
+    """Mean over pixels and channels of |T(pred) - T(obs)| (``obs_tonemapped`` = T(obs), precomputed);
+    :func:`lightcrafter.envfit.fit.data_weights` scales it to the objective's data term."""
+    return (reinhard(pred) - obs_tonemapped).abs().mean()
+
+
+def l1_tonemapped_np(pred: np.ndarray, obs_tonemapped: np.ndarray) -> tuple[float, np.ndarray]:
+    """numpy twin of :func:`l1_tonemapped` with its gradient: (loss, d loss / d pred)."""
+    pred = np.maximum(np.asarray(pred, np.float64), 0.0)
+    diff = reinhard(pred) - obs_tonemapped
+    n = diff.size
+    grad = np.sign(diff) / ((1.0 + pred) ** 2) / n
+    return float(np.abs(diff).sum() / n), grad
+
+
+class ExternalLoss(torch.autograd.Function):
+    """A scalar loss of a map computed outside torch: ``fn(env_numpy) -> (loss, d loss / d env)``.
+    Both solvers' data terms enter the shared torch graph (map head, TV, Adam) through it."""
+
+    @staticmethod
+    def forward(ctx, env: torch.Tensor, fn) -> torch.Tensor:
+        loss, grad = fn(env.detach().numpy())
+        ctx.grad = torch.from_numpy(np.asarray(grad).reshape(env.shape)).to(env.dtype)
+        return torch.tensor(float(loss), dtype=env.dtype)
+
+    @staticmethod
+    def backward(ctx, g: torch.Tensor):
+        return g * ctx.grad, None
+
+
+def log_of_map(env: np.ndarray, where: str = "<init map>") -> np.ndarray:
+    """Floored natural log of a linear map (see module doc); all-zero maps raise DataError."""
+    env = np.asarray(env, np.float64)
+    mean = float(np.mean(env))
+    if not np.isfinite(env).all() or mean <= 0:
+        raise DataError(f"{where}: initial envmap is all zero or not finite; give a map with positive radiance "
+                        "or no map (constant grey default)")
+    return np.log(np.maximum(env, LOG_FLOOR_REL * mean)).astype(np.float32)
+
+
+def resize_map(env: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Resample a lat-long map to (height, width): area average when shrinking by whole factors,
+    else bilinear lookup at the new texel centres (lightcrafter.envmap.sample_bilinear)."""
+    env = np.asarray(env, np.float32)
+    h, w = env.shape[:2]
+    if (h, w) == (height, width):
+        return env.copy()
+    if h % height == 0 and w % width == 0:
+        fh, fw = h // height, w // width
+        return env.reshape(height, fh, width, fw, 3).mean(axis=(1, 3)).astype(np.float32)
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    if h > height or w > width:  # pre-blur by box-averaging to the nearest whole factor above
+        fh, fw = max(1, h // height), max(1, w // width)
+        hh, ww = (h // fh) * fh, (w // fw) * fw
+        env = env[:hh, :ww].reshape(hh // fh, fh, ww // fw, fw, 3).mean(axis=(1, 3))
+    return envmap.sample_bilinear(env, u[None, :], v[:, None]).astype(np.float32)
+
+
+@dataclass
+class EnvParams:
+    """Optimised tensors (float32, requires_grad): log_map (H, W, 3), yaw, pitch (rad), exposure (EV)."""
+
+    log_map: torch.Tensor
+    yaw: torch.Tensor
+    pitch: torch.Tensor
+    exposure: torch.Tensor
+
+    @classmethod
+    def create(cls, log_map: np.ndarray, yaw: float = 0.0, pitch: float = 0.0, exposure: float = 0.0) -> "EnvParams":
+        def t(x):
+            return torch.tensor(np.asarray(x, np.float32), dtype=torch.float32).clone().requires_grad_(True)
+
+        return cls(t(log_map), t(yaw), t(pitch), t(exposure))
+
+    def tensors(self, fit_rotation: bool = True, fit_exposure: bool = True) -> list[torch.Tensor]:
+        out = [self.log_map]
+        if fit_rotation:
+            out += [self.yaw, self.pitch]
+        if fit_exposure:
+            out.append(self.exposure)
+        return out
+
+    def numpy(self) -> dict:
+        return {"log_map": self.log_map.detach().numpy().copy(), "yaw_rad": float(self.yaw.detach()),
+                "pitch_rad": float(self.pitch.detach()), "exposure_ev": float(self.exposure.detach())}
+
+
+class MapHead:
+    """L = 2**exposure * rotate(exp(log_map), yaw, pitch) for maps of one size (directions cached)."""
+
+    def __init__(self, height: int, width: int):
+        self.height, self.width = int(height), int(width)
+        self.dirs = torch.from_numpy(envmap.pixel_directions(self.height, self.width))  # (H, W, 3) float64
+
+    def rotate(self, env: torch.Tensor, yaw: torch.Tensor, pitch: torch.Tensor) -> torch.Tensor:
+        """Differentiable :func:`lightcrafter.envmap.rotate` of a (H, W, C) map (float64 inside).
+
+        Bilinear lookup (horizontal wrap, vertical clamp) by ``grid_sample`` on the map padded with
+        one wrapped column on each side; gradients reach yaw and pitch through the sample positions
+        (a clamped row, beyond the outermost texel centres, has none, as in the numpy reference)."""
+        h, w = self.height, self.width
+        y, p = yaw.to(torch.float64), pitch.to(torch.float64)
+        cy, sy, cp, sp = torch.cos(y), torch.sin(y), torch.cos(p), torch.sin(p)
+        zero, one = torch.zeros((), dtype=torch.float64), torch.ones((), dtype=torch.float64)
+        rz = torch.stack([torch.stack([cy, -sy, zero]), torch.stack([sy, cy, zero]), torch.stack([zero, zero, one])])
+        ry = torch.stack([torch.stack([cp, zero, sp]), torch.stack([zero, one, zero]), torch.stack([-sp, zero, cp])])
+        src = self.dirs @ (ry @ rz)  # row-vector form of R^T d
+        x, yy, z = src[..., 0], src[..., 1], src[..., 2]
+        u = torch.remainder((math.pi - torch.atan2(yy, x)) / (2 * math.pi), 1.0)
+        v = torch.atan2(torch.sqrt(x * x + yy * yy + 1e-30), z) / math.pi  # = acos(z), finite gradient
+        col = u * w - 0.5  # in [-0.5, W - 0.5): + 1 in the padded map
+        row = torch.clamp(v * h - 0.5, 0.0, h - 1.0)
+        padded = torch.cat([env[:, -1:], env, env[:, :1]], dim=1).permute(2, 0, 1).unsqueeze(0).to(torch.float64)
+        gx = (col + 1.0) * (2.0 / (w + 1)) - 1.0
+        gy = row * (2.0 / max(h - 1, 1)) - 1.0
+        grid = torch.stack([gx, gy], dim=-1).unsqueeze(0)  # (1, H, W, 2)
+        out = torch.nn.functional.grid_sample(padded, grid, mode="bilinear", padding_mode="border", align_corners=True)
+        return out[0].permute(1, 2, 0).to(env.dtype)
+
+    def __call__(self, params: EnvParams) -> torch.Tensor:
+        env = torch.exp(params.log_map)
+        env = self.rotate(env, params.yaw, params.pitch)
+        return env * torch.exp2(params.exposure)
+
+    def baked(self, params: EnvParams) -> np.ndarray:
+        """The map R renders with, (H, W, 3) float32 linear, world frame."""
+        with torch.no_grad():
+            return self(params).numpy().astype(np.float32)
+
+
+def make_adam(params: EnvParams, lr: float, betas: tuple[float, float], fit_rotation: bool, fit_exposure: bool):
+    """torch.optim.Adam (fused CPU kernel, same update) over the optimised tensors; both solvers use it."""
+    return torch.optim.Adam(params.tensors(fit_rotation, fit_exposure), lr=lr, betas=tuple(betas), fused=True)
