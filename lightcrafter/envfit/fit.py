@@ -67,8 +67,8 @@ class FitSettings:
 
     env_height, env_width: map size (64 x 128); iterations, lr, betas: Adam; lambda_tv: TV weight;
     data_reduction: 'sum' (the paper's L1 norm summed over the frames, pixels and channels) or 'mean'
-    (mean over pixels and channels, frames averaged), see :mod:`.model`; frame_stride: fitted frames {0, stride, ...}; fit_rotation / fit_exposure: optimise yaw+pitch /
-    exposure; seed: frame sequence, pixel samples and Monte Carlo seeds; init_match_mean, init_spp:
+    (mean over pixels and channels, frames averaged), see :mod:`.model`; frame_stride: fitted frames {0, stride, ...}; fit_rotation / fit_exposure / fit_map: optimise
+    yaw+pitch / exposure / the log map (False: only the global parameters move, e.g. to align a known map); seed: frame sequence, pixel samples and Monte Carlo seeds; init_match_mean, init_spp:
     initial scale; saturation_level: clip level (None = detect, <= 0 = off); use_background: fit
     the background pixels R shows (R's show_background); ref_spp, ref_pixels: reference lanes per
     pixel and pixels per iteration (0 = all used pixels); transport_spp, transport_pixels: fast
@@ -87,6 +87,7 @@ class FitSettings:
     frame_stride: int = 4
     fit_rotation: bool = True
     fit_exposure: bool = True
+    fit_map: bool = True
     seed: int = 0
     init_match_mean: bool = True
     init_spp: int = 4
@@ -243,7 +244,8 @@ def _optimize(problem, settings, checkpoint, fingerprint, snapshot, snapshot_at,
     objective = build_objective(problem, settings)
     head = MapHead(settings.env_height, settings.env_width)
     params = EnvParams.create(problem.init_log_map)
-    opt = make_adam(params, settings.lr, settings.betas, settings.fit_rotation, settings.fit_exposure)
+    opt = make_adam(params, settings.lr, settings.betas, settings.fit_rotation, settings.fit_exposure,
+                    settings.fit_map)
     seq = frame_sequence(problem.video.fitted, settings.iterations, settings.seed)
     weight = data_weights(problem.video, settings.data_reduction)
     start, curve, offset = 0, [], 0.0
@@ -339,7 +341,7 @@ def fit_envmap(clip: str | Path, frames_dir: str | Path, out_dir: str | Path, se
             old = io.read_json(manifest_path)
         except io.DataError:
             old = {}
-        if old.get("fingerprint") == fp and all((out_dir / old["files"][k]).is_file() for k in old.get("files", {})):
+        if old.get("fingerprint") == fp and all((out_dir / f).exists() for f in old.get("files", {}).values()):
             return old
     head = MapHead(settings.env_height, settings.env_width)
     done = None
@@ -411,4 +413,4 @@ def fit_envmap(clip: str | Path, frames_dir: str | Path, out_dir: str | Path, se
         manifest["fit"]["final_loss"] = round(float(np.mean(tail)), 6)
         manifest["fit"]["final_loss_note"] = "mean of the last 50 per-iteration objective estimates"
     io.write_json(manifest_path, manifest)
-    return manifest
+    return io.read_json(manifest_path)

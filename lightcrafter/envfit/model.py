@@ -140,8 +140,8 @@ class EnvParams:
 
         return cls(t(log_map), t(yaw), t(pitch), t(exposure))
 
-    def tensors(self, fit_rotation: bool = True, fit_exposure: bool = True) -> list[torch.Tensor]:
-        out = [self.log_map]
+    def tensors(self, fit_rotation: bool = True, fit_exposure: bool = True, fit_map: bool = True) -> list[torch.Tensor]:
+        out = [self.log_map] if fit_map else []
         if fit_rotation:
             out += [self.yaw, self.pitch]
         if fit_exposure:
@@ -196,6 +196,10 @@ class MapHead:
             return self(params).numpy().astype(np.float32)
 
 
-def make_adam(params: EnvParams, lr: float, betas: tuple[float, float], fit_rotation: bool, fit_exposure: bool):
+def make_adam(params: EnvParams, lr: float, betas: tuple[float, float], fit_rotation: bool = True,
+              fit_exposure: bool = True, fit_map: bool = True):
     """torch.optim.Adam (fused CPU kernel, same update) over the optimised tensors; both solvers use it."""
-    return torch.optim.Adam(params.tensors(fit_rotation, fit_exposure), lr=lr, betas=tuple(betas), fused=True)
+    tensors = params.tensors(fit_rotation, fit_exposure, fit_map)
+    if not tensors:
+        raise ValueError("nothing to optimise: enable fit_map, fit_rotation or fit_exposure")
+    return torch.optim.Adam(tensors, lr=lr, betas=tuple(betas), fused=True)

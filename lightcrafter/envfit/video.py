@@ -9,9 +9,11 @@ pixels of which frames the objective uses.
   information about the light; the list of dropped frames is reported); all dropped -> DataError.
 * Saturated pixels: a pixel with any channel at or above the clip level is left out (its true
   radiance is unknown). ``saturation_level=None`` detects the level: the video's maximum, if at
-  least ``AUTO_CLIP_FRACTION`` of the fitted frames' pixels reach it (a plateau, as an 8-bit video
-  decoded to linear has at 1.0); a rendered HDR video has its maximum in a few pixels, so nothing is
-  cut. ``saturation_level=0`` or a negative value disables the test.
+  least ``AUTO_CLIP_FRACTION`` (0.5 %, and at least 4) of the fitted frames' pixels reach it
+  exactly (to 1e-6 relative): a plateau, as an 8-bit video decoded to linear has at 1.0; a rendered
+  HDR video has its maximum in a pixel or two, so nothing is cut. A video whose few clipped pixels
+  escape the detection should pass its level (e.g. 1.0 for frames decoded from 8-bit with
+  io.display_to_linear at 0 EV). ``saturation_level=0`` or a negative value disables the test.
 * Used pixels of a fitted frame: observed radiance usable (above) and R defines the pixel: a surface
   pixel (buffer mask and finite depth), or a background pixel when R shows the background (it
   then renders the environment there). A clip whose fitted frames have no usable *surface* pixel
@@ -30,8 +32,9 @@ from lightcrafter import io
 from lightcrafter.clip import ClipInfo, FrameView, manifest_path
 from lightcrafter.proxy.geometry import valid_depth
 
-AUTO_CLIP_FRACTION = 2e-3
-CLIP_REL_TOL = 1e-4
+AUTO_CLIP_FRACTION = 5e-3
+AUTO_CLIP_MIN_PIXELS = 4
+CLIP_REL_TOL = 1e-6
 NEGATIVE_TOLERANCE_REL = 0.02
 
 
@@ -99,7 +102,8 @@ def detect_saturation(frames: np.ndarray) -> float | None:
     if m <= 0:
         return None
     at_max = (frames >= m * (1 - CLIP_REL_TOL)).any(axis=-1)
-    return m if at_max.mean() >= AUTO_CLIP_FRACTION else None
+    n = int(at_max.sum())
+    return m if n >= AUTO_CLIP_MIN_PIXELS and n >= AUTO_CLIP_FRACTION * at_max.size else None
 
 
 def select(frames: np.ndarray, views: list[FrameView], info: ClipInfo, frames_dir: str | Path, stride: int = 4,
@@ -111,7 +115,7 @@ def select(frames: np.ndarray, views: list[FrameView], info: ClipInfo, frames_di
         raise io.DataError(f"{frames_dir}: every fitted frame ({len(fitted)} of every {stride}th) is black; nothing "
                            "to fit the light to: check the frames' exposure / decoding")
     level = detect_saturation(sub) if saturation_level is None else (saturation_level if saturation_level > 0 else None)
-    used, dropped, n_sat, n_surface = {}, [], 0, 0
+    used, dropped, n_sat, n_surface, n_surface_all = {}, [], 0, 0, 0
     for i in fitted:
         f = frames[i].reshape(-1, 3)
         if float(f.max()) <= 0:
@@ -124,6 +128,7 @@ def select(frames: np.ndarray, views: list[FrameView], info: ClipInfo, frames_di
             ok &= ~sat
         b = views[i].buffers
         surface = valid_depth(b.depth, b.mask).ravel()
+        n_surface_all += int(surface.sum())
         n_surface += int((surface & ok).sum())
         if not use_background:
             ok &= surface
@@ -131,7 +136,7 @@ def select(frames: np.ndarray, views: list[FrameView], info: ClipInfo, frames_di
         if len(idx):
             used[i] = idx
     if n_surface == 0:
-        if level is not None and n_sat:
+        if n_surface_all and level is not None and n_sat:
             raise io.DataError(f"{frames_dir}: every surface pixel of the fitted frames is saturated (>= {level:g}); "
                                "give frames that are not clipped (lower exposure) or pass a higher saturation level")
         raise io.DataError(f"{manifest_path(info.root)}: no valid pixel (mask and finite depth) with a usable "
