@@ -31,11 +31,21 @@ class TrueObjective:
         self.settings = replace(problem.render, spp=int(spp), seed=int(seed))
         self.lambda_tv = float(lambda_tv)
         self.reduction = reduction
+        self._base = None
+
+    def _renderer(self, env: np.ndarray) -> ProxyRenderer:
+        r = ProxyRenderer(Lighting(env=np.asarray(env, np.float32)), self.settings)
+        if self.settings.visibility in ("aggregate", "auto"):
+            if self._base is None:  # R's clip visibility mesh, built once for every map evaluated
+                r.prepare(self.problem.views)
+                self._base = r
+            else:
+                r.share_visibility(self._base)
+        return r
 
     def renders(self, env: np.ndarray) -> dict[int, np.ndarray]:
-        r = ProxyRenderer(Lighting(env=np.asarray(env, np.float32)), self.settings)
+        r = self._renderer(env)
         p = self.problem
-        r.prepare(p.views)
         return {i: r.render(p.views[i], frame=i) for i in p.video.fitted}
 
     def __call__(self, env: np.ndarray, log_map: np.ndarray | None = None) -> dict:

@@ -326,14 +326,14 @@ def fit_envmap(clip: str | Path, frames_dir: str | Path, out_dir: str | Path, se
     out_dir = Path(out_dir)
     set_threads(settings.threads)
     if isinstance(init_map, (str, Path)):
-        init_arr = envmap.load(init_map)
         init_src = str(init_map)
+        init_digest = _digest_array(envmap.load(init_map))
     else:
-        init_arr, init_src = init_map, (None if init_map is None else "<array>")
-    problem = prepare(clip, frames_dir, settings, render, init_arr)
+        init_src = None if init_map is None else "<array>"
+        init_digest = None if init_map is None else _digest_array(init_map)
+    problem = prepare(clip, frames_dir, settings, render, init_map)
     render = problem.render
-    fp = fit_fingerprint(problem.info.root, problem.video.frames, settings, render,
-                         None if init_arr is None else _digest_array(init_arr))
+    fp = fit_fingerprint(problem.info.root, problem.video.frames, settings, render, init_digest)
     params_path = out_dir / "params.npz"
     manifest_path = out_dir / "fit.json"
     if manifest_path.is_file():
@@ -388,7 +388,8 @@ def fit_envmap(clip: str | Path, frames_dir: str | Path, out_dir: str | Path, se
     pseudo = None
     if render_pseudo:
         pseudo = render_clip(problem.info.root, out_dir / "lighting.json", out_dir / "pseudo", settings=render,
-                             extra={"kind": "real_pseudo_input", **(extra or {})})
+                             extra={"kind": "real_pseudo_input", **(extra or {})},
+                             visibility_from=problem.tracer.renderer)  # same clip, same geometry settings
         from lightcrafter.metrics import display_psnr_db
 
         frames = [io.read_rgb_exr(out_dir / f) for f in pseudo["frames"]]

@@ -153,35 +153,78 @@ class EnvParams:
                 "pitch_rad": float(self.pitch.detach()), "exposure_ev": float(self.exposure.detach())}
 
 
+def rotation_grid(dirs: np.ndarray, yaw: float, pitch: float, width: int, height: int):
+    """Source position of every output texel of :func:`lightcrafter.envmap.rotate` as a
+    ``grid_sample`` grid over the map padded with one wrapped column on each side, and its analytic
+    derivatives by yaw and pitch. ``dirs`` (N, 3): output texel directions. Returns (grid (N, 2),
+    d grid / d yaw (N, 2), d grid / d pitch (N, 2)), float64, align_corners=True convention."""
+    cy, sy, cp, sp_ = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp_], [0.0, 1.0, 0.0], [-sp_, 0.0, cp]])
+    drz = np.array([[-sy, -cy, 0.0], [cy, -sy, 0.0], [0.0, 0.0, 0.0]])
+    dry = np.array([[-sp_, 0.0, cp], [0.0, 0.0, 0.0], [-cp, 0.0, -sp_]])
+    src = dirs @ (ry @ rz)  # row-vector form of R^T d
+    x, y, z = src[:, 0], src[:, 1], src[:, 2]
+    rho2 = x * x + y * y
+    rho = np.sqrt(rho2)
+    u = np.mod((math.pi - np.arctan2(y, x)) / (2 * math.pi), 1.0)
+    v = np.arctan2(rho, z) / math.pi  # = acos(z) for unit src
+    col = u * width - 0.5  # in [-0.5, W - 0.5): + 1 in the padded map
+    row_raw = v * height - 0.5
+    row = np.clip(row_raw, 0.0, height - 1.0)
+    sx, sy_ = 2.0 / (width + 1), 2.0 / max(height - 1, 1)
+    grid = np.stack([(col + 1.0) * sx - 1.0, row * sy_ - 1.0], axis=-1)
+    inside = (row_raw > 0.0) & (row_raw < height - 1.0)  # a clamped row does not move
+    ok = rho2 > 1e-24
+    safe_rho2 = np.where(ok, rho2, 1.0)
+    safe_rho = np.sqrt(safe_rho2)
+    derivs = []
+    for m in (ry @ drz, dry @ rz):
+        d = dirs @ m
+        dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
+        datan = np.where(ok, (x * dy - y * dx) / safe_rho2, 0.0)  # d atan2(y, x)
+        drho = np.where(ok, (x * dx + y * dy) / safe_rho, 0.0)
+        dv = (z * drho - rho * dz) / np.maximum(rho2 + z * z, 1e-24) / math.pi
+        dcol = -datan / (2 * math.pi) * width
+        drow = np.where(inside, dv * height, 0.0)
+        derivs.append(np.stack([dcol * sx, drow * sy_], axis=-1))
+    return grid, derivs[0], derivs[1]
+
+
+class _RotationGrid(torch.autograd.Function):
+    """(yaw, pitch) -> sampling grid of :func:`rotation_grid`, gradient by its analytic Jacobian."""
+
+    @staticmethod
+    def forward(ctx, yaw: torch.Tensor, pitch: torch.Tensor, dirs: np.ndarray, width: int, height: int):
+        grid, d_yaw, d_pitch = rotation_grid(dirs, float(yaw), float(pitch), width, height)
+        ctx.jac = (d_yaw, d_pitch)
+        ctx.dtype = yaw.dtype
+        return torch.from_numpy(grid.reshape(1, height, width, 2))
+
+    @staticmethod
+    def backward(ctx, g: torch.Tensor):
+        g = g.detach().numpy().reshape(-1, 2)
+        d_yaw, d_pitch = ctx.jac
+        return (torch.tensor(float((g * d_yaw).sum()), dtype=ctx.dtype),
+                torch.tensor(float((g * d_pitch).sum()), dtype=ctx.dtype), None, None, None)
+
+
 class MapHead:
     """L = 2**exposure * rotate(exp(log_map), yaw, pitch) for maps of one size (directions cached)."""
 
     def __init__(self, height: int, width: int):
         self.height, self.width = int(height), int(width)
-        self.dirs = torch.from_numpy(envmap.pixel_directions(self.height, self.width))  # (H, W, 3) float64
+        self.dirs = envmap.pixel_directions(self.height, self.width).reshape(-1, 3)  # float64
 
     def rotate(self, env: torch.Tensor, yaw: torch.Tensor, pitch: torch.Tensor) -> torch.Tensor:
         """Differentiable :func:`lightcrafter.envmap.rotate` of a (H, W, C) map (float64 inside).
 
         Bilinear lookup (horizontal wrap, vertical clamp) by ``grid_sample`` on the map padded with
         one wrapped column on each side; gradients reach yaw and pitch through the sample positions
-        (a clamped row, beyond the outermost texel centres, has none, as in the numpy reference)."""
-        h, w = self.height, self.width
-        y, p = yaw.to(torch.float64), pitch.to(torch.float64)
-        cy, sy, cp, sp = torch.cos(y), torch.sin(y), torch.cos(p), torch.sin(p)
-        zero, one = torch.zeros((), dtype=torch.float64), torch.ones((), dtype=torch.float64)
-        rz = torch.stack([torch.stack([cy, -sy, zero]), torch.stack([sy, cy, zero]), torch.stack([zero, zero, one])])
-        ry = torch.stack([torch.stack([cp, zero, sp]), torch.stack([zero, one, zero]), torch.stack([-sp, zero, cp])])
-        src = self.dirs @ (ry @ rz)  # row-vector form of R^T d
-        x, yy, z = src[..., 0], src[..., 1], src[..., 2]
-        u = torch.remainder((math.pi - torch.atan2(yy, x)) / (2 * math.pi), 1.0)
-        v = torch.atan2(torch.sqrt(x * x + yy * yy + 1e-30), z) / math.pi  # = acos(z), finite gradient
-        col = u * w - 0.5  # in [-0.5, W - 0.5): + 1 in the padded map
-        row = torch.clamp(v * h - 0.5, 0.0, h - 1.0)
+        (:func:`rotation_grid`, analytic; a clamped row, beyond the outermost texel centres, has none,
+        as in the numpy reference)."""
+        grid = _RotationGrid.apply(yaw, pitch, self.dirs, self.width, self.height)
         padded = torch.cat([env[:, -1:], env, env[:, :1]], dim=1).permute(2, 0, 1).unsqueeze(0).to(torch.float64)
-        gx = (col + 1.0) * (2.0 / (w + 1)) - 1.0
-        gy = row * (2.0 / max(h - 1, 1)) - 1.0
-        grid = torch.stack([gx, gy], dim=-1).unsqueeze(0)  # (1, H, W, 2)
         out = torch.nn.functional.grid_sample(padded, grid, mode="bilinear", padding_mode="border", align_corners=True)
         return out[0].permute(1, 2, 0).to(env.dtype)
 

@@ -258,6 +258,11 @@ class ProxyRenderer:
         self._set_shadow(verts, faces, "aggregate")
 
     # ------------------------------------------------------------------ rendering
+    def share_visibility(self, other: "ProxyRenderer") -> None:
+        """Use ``other``'s prepared clip visibility mesh instead of building it again (renderers of the
+        same clip and settings under other lightings; shadow rays test geometry only)."""
+        self._shadow, self._shadow_key = other._shadow, other._shadow_key
+
     def frame_state(self, view: FrameView) -> tuple[_Primary, object]:
         """(primary geometry of ``view``, shadow scene) exactly as :meth:`render` uses them (built or
         taken from the cache). Envmap fitting traces its rays through these."""
