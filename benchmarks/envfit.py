@@ -19,7 +19,8 @@ Measured
 * ``memory``: the fast solver's transport bytes (measured and the bound of
   lightcrafter.envfit.transport) at this size and at the paper's (720x480, 49 frames: synthetic
   buffers and frames, run in a subprocess for its peak RSS; R's visibility 'frame' there, since the
-  49-frame aggregate mesh is R's own cost and not the solver's).
+  49-frame aggregate mesh is R's own cost and not the solver's), with seconds per iteration of
+  both solvers at that size (reference: ``--paper-ref-iterations`` on one frame).
 * ``default_clip``: seconds of the fast solver and of a whole fit_envmap (pseudo video included) per clip.
 * ``ground_truth``: fast fits on clips whose map is known: SH (order 2, upper hemisphere) relative
   error after yaw alignment, re-render PSNR, against the initial map and the true map.
@@ -77,8 +78,11 @@ def run_solver(clip, frames_dir, settings: FitSettings, snapshots) -> tuple[list
     pb = prepare(clip, frames_dir, settings)
     prep = time.perf_counter() - t0
     snaps = []
+    c0 = time.process_time()
     res = optimize(pb, settings, snapshot=lambda it, s, p: snaps.append((it, s, p)), snapshot_at=snapshots)
+    cpu = time.process_time() - c0
     return snaps, {"prepare_seconds": round(prep, 3), "solve_seconds": round(res.seconds, 3),
+                   "solve_cpu_seconds_all_threads": round(cpu, 3),
                    "setup_seconds": round(res.setup_seconds, 3), "stats": res.stats,
                    "final_params": {k: v for k, v in res.params.items() if k != "log_map"}}, prep
 
@@ -109,7 +113,8 @@ def seconds_to_reach(points: list, target: float) -> float | None:
     return pts[0]["seconds"] if pts and pts[0]["value"] <= target else None
 
 
-def paper_memory(width: int, height: int, frames: int, settings: FitSettings, iterations: int) -> dict:
+def paper_memory(width: int, height: int, frames: int, settings: FitSettings, iterations: int,
+                 ref_iterations: int = 0) -> dict:
     """Fast solver at the paper's resolution on synthetic buffers and frames (run in a subprocess)."""
     from lightcrafter.envfit.fit import build_objective
 
@@ -140,16 +145,26 @@ def paper_memory(width: int, height: int, frames: int, settings: FitSettings, it
         res = optimize(pb, s)
         per_it = (res.seconds - res.setup_seconds) / max(1, iterations)
         fitted = len(pb.video.fitted)
+        transport_bytes, transport_nnz = obj.nbytes, obj.nnz
+        del obj, res
+        ref = {}
+        if ref_iterations > 0:  # reference iterations on frame 0 only (the first builds its mesh)
+            sr = replace(s, solver="reference", iterations=ref_iterations + 1, frame_stride=frames)
+            pr = prepare(clip, root / "frames", sr, render)
+            rr = optimize(pr, sr)
+            c = rr.curve
+            ref = {"reference_seconds_per_iteration": round((c[-1]["seconds"] - c[0]["seconds"]) / ref_iterations, 3),
+                   "reference_iterations_timed": ref_iterations, "reference_ref_spp": sr.ref_spp}
         return {"width": width, "height": height, "frames": frames, "fitted_frames": fitted,
                 "transport_pixels": s.transport_pixels, "transport_spp": s.transport_spp,
-                "transport_bytes": obj.nbytes, "transport_nnz": obj.nnz,
+                "transport_bytes": transport_bytes, "transport_nnz": transport_nnz,
                 "bound_bytes": memory_bound_bytes(fitted, s.transport_pixels, s.transport_spp, s.env_height, s.env_width),
                 "video_bytes": int(pb.video.frames.nbytes),
                 "peak_rss_bytes_before_prepare": rss0 * 1024, "peak_rss_bytes_after_transport": rss1 * 1024,
                 "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
                 "make_inputs_seconds": round(make_s, 2), "prepare_seconds": round(prep, 2),
                 "transport_build_seconds": round(build, 2), "seconds_per_iteration": round(per_it, 5),
-                "iterations_timed": iterations, "visibility": "frame"}
+                "iterations_timed": iterations, "visibility": "frame", **ref}
 
 
 def ground_truth(maps: list[str], args, settings: FitSettings, head: MapHead, reuse: dict) -> list:
@@ -200,6 +215,7 @@ def main() -> None:
     ap.add_argument("--paper-height", type=int, default=480)
     ap.add_argument("--paper-frames", type=int, default=49)
     ap.add_argument("--paper-iterations", type=int, default=200, help="iterations timed at the paper's size")
+    ap.add_argument("--paper-ref-iterations", type=int, default=3, help="reference iterations timed at the paper's size")
     ap.add_argument("--skip-paper", action="store_true")
     ap.add_argument("--paper-memory-only", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -212,7 +228,8 @@ def main() -> None:
     dr.set_thread_count(a.threads)
     base = FitSettings(iterations=a.iterations, threads=a.threads, checkpoint_every=0)
     if a.paper_memory_only:
-        print(json.dumps(paper_memory(a.paper_width, a.paper_height, a.paper_frames, base, a.paper_iterations)))
+        print(json.dumps(paper_memory(a.paper_width, a.paper_height, a.paper_frames, base, a.paper_iterations,
+                                      a.paper_ref_iterations)))
         return
     snapshots = [s for s in SNAPSHOTS if s <= a.iterations] + ([a.iterations] if a.iterations not in SNAPSHOTS else [])
     head = MapHead(base.env_height, base.env_width)
@@ -257,6 +274,10 @@ def main() -> None:
             "goal": 20.0,
         }
         speed["goal_met"] = bool(speed["speedup"] is not None and speed["speedup"] >= 20.0)
+        t_rev = seconds_to_reach(ref_pts, fast_pts[-1]["value"])
+        speed["reference_seconds_to_reach_fast_final"] = None if t_rev is None else round(t_rev, 3)
+        speed["cpu_seconds_per_iteration"] = {
+            k: round(runs[k][1]["solve_cpu_seconds_all_threads"] / a.iterations, 5) for k in runs}
         print(f"speedup: {speed}", flush=True)
         # whole default-size fit (pseudo video included), as the pipeline runs it
         t0 = time.perf_counter()
@@ -285,7 +306,8 @@ def main() -> None:
         print(f"paper size {a.paper_width}x{a.paper_height}x{a.paper_frames} (subprocess) ...", flush=True)
         cmd = [sys.executable, __file__, "--paper-memory-only", "--threads", str(a.threads),
                "--paper-width", str(a.paper_width), "--paper-height", str(a.paper_height),
-               "--paper-frames", str(a.paper_frames), "--paper-iterations", str(a.paper_iterations)]
+               "--paper-frames", str(a.paper_frames), "--paper-iterations", str(a.paper_iterations),
+               "--paper-ref-iterations", str(a.paper_ref_iterations)]
         p = subprocess.run(cmd, capture_output=True, text=True)
         if p.returncode == 0:
             memory["paper"] = json.loads(p.stdout.strip().splitlines()[-1])
@@ -296,8 +318,9 @@ def main() -> None:
     gt = ground_truth([a.hdri] + list(a.gt_maps), a, base, head, reuse)
     result = {
         "name": "envfit", "varied": "iteration (series: solver)",
-        "metric": "objective: sum over fitted frames, used pixels, channels of |T(R)-T(I)|, T = Reinhard, "
-                  f"+ {base.lambda_tv:g} TV(log L); R at {a.eval_spp} spp",
+        "metric": "objective",
+        "metric_definition": "sum over fitted frames, used pixels, channels of |T(R)-T(I)|, T = Reinhard, "
+                             f"+ {base.lambda_tv:g} TV(log L); R at {a.eval_spp} spp",
         "higher_is_better": False,
         "machine": {"cores": os.cpu_count(), "platform": platform.platform(), "threads_used": a.threads,
                     "mitsuba_variant": variant, "load_average_at_end": list(os.getloadavg())},

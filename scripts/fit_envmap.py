@@ -26,7 +26,8 @@ def main():
     ap.add_argument("--frames", required=True, help="folder of the video's linear EXR frames {i:04d}.exr")
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--solver", choices=SOLVERS, default=d.solver)
-    ap.add_argument("--init-map", default=None, help="initial lat-long EXR (e.g. DiffusionLight's); default constant grey")
+    ap.add_argument("--init-map", default=None,
+                    help="initial lat-long EXR (e.g. DiffusionLight's); default constant grey")
     ap.add_argument("--no-init-match-mean", action="store_true", help="keep the initial map's scale as given")
     ap.add_argument("--iterations", type=int, default=d.iterations)
     ap.add_argument("--lr", type=float, default=d.lr)
@@ -40,7 +41,8 @@ def main():
     ap.add_argument("--saturation-level", type=float, default=None,
                     help="linear level at which the video clips (default: detect a plateau at the maximum; 0: off)")
     ap.add_argument("--no-background", action="store_true", help="fit surface pixels only")
-    ap.add_argument("--transport-pixels", type=int, default=d.transport_pixels, help="fast: pixels per fitted frame (0 = all)")
+    ap.add_argument("--transport-pixels", type=int, default=d.transport_pixels,
+                    help="fast: pixels per fitted frame (0 = all)")
     ap.add_argument("--transport-spp", type=int, default=d.transport_spp, help="fast: lanes per pixel")
     ap.add_argument("--ref-spp", type=int, default=d.ref_spp, help="reference: lanes per pixel per iteration")
     ap.add_argument("--ref-pixels", type=int, default=d.ref_pixels, help="reference: pixels per iteration (0 = all)")

@@ -63,17 +63,22 @@ SOLVERS = ("fast", "reference")
 
 @dataclass(frozen=True)
 class FitSettings:
-    """Every knob of the fit, paper values as defaults (see module docs of :mod:`.fit`, :mod:`.model`).
+    """Every knob of the fit, paper values as defaults (see the module docs of :mod:`.fit`, :mod:`.model`).
 
-    env_height, env_width: map size (64 x 128); iterations, lr, betas: Adam; lambda_tv: TV weight;
-    data_reduction: 'sum' (the paper's L1 norm summed over the frames, pixels and channels) or 'mean'
-    (mean over pixels and channels, frames averaged), see :mod:`.model`; frame_stride: fitted frames {0, stride, ...}; fit_rotation / fit_exposure / fit_map: optimise
-    yaw+pitch / exposure / the log map (False: only the global parameters move, e.g. to align a known map); seed: frame sequence, pixel samples and Monte Carlo seeds; init_match_mean, init_spp:
-    initial scale; saturation_level: clip level (None = detect, <= 0 = off); use_background: fit
-    the background pixels R shows (R's show_background); ref_spp, ref_pixels: reference lanes per
-    pixel and pixels per iteration (0 = all used pixels); transport_spp, transport_pixels: fast
-    solver's lanes per pixel and pixels per fitted frame (0 = all); threads: CPU threads for Dr.Jit
-    and torch (None = library default); checkpoint_every: iterations between checkpoints (0 = off).
+    * solver: 'fast' or 'reference'; env_height, env_width: map size (64 x 128);
+    * iterations, lr, betas: Adam (2000, 2e-3, torch defaults); lambda_tv: TV weight (1e-3);
+    * data_reduction: 'sum' (the paper's L1 norm summed over frames, pixels and channels) or 'mean'
+      (mean over pixels and channels, frames averaged), see :mod:`.model`;
+    * frame_stride: fitted frames {0, stride, 2 stride, ...} (4);
+    * fit_rotation / fit_exposure / fit_map: optimise yaw + pitch / exposure / the log map (False:
+      it stays at its initial value, e.g. fit_map=False aligns a known map by yaw/pitch/exposure);
+    * seed: frame sequence, pixel samples and Monte Carlo seeds;
+    * init_match_mean, init_spp: initial scale (module doc) and its lanes per pixel;
+    * saturation_level: clip level of the video (None = detect a plateau, <= 0 = off);
+    * use_background: fit the background pixels R shows (with R's show_background);
+    * ref_spp, ref_pixels: reference lanes per pixel and pixels per iteration (0 = all used pixels);
+    * transport_spp, transport_pixels: fast solver's lanes per pixel and pixels per fitted frame (0 = all);
+    * threads: Dr.Jit threads (None = its default); checkpoint_every: iterations between checkpoints (0 = off).
     """
 
     solver: str = "fast"
@@ -208,7 +213,8 @@ def prepare(clip: str | Path, frames_dir: str | Path, settings: FitSettings,
             init_map = envmap.load(init_map)
         env0 = resize_map(envmap.validate(init_map, where), h, w)
         log_of_map(env0, where)  # all-zero / non-finite check
-    scale = (_initial_scale(tracer, views, vid, env0, settings.init_spp, settings.seed, str(clipmod.manifest_path(info.root)))
+    where_clip = str(clipmod.manifest_path(info.root))
+    scale = (_initial_scale(tracer, views, vid, env0, settings.init_spp, settings.seed, where_clip)
              if settings.init_match_mean else 1.0)
     log_map = log_of_map(env0 * np.float32(scale), where)
     return Problem(views=views, info=info, video=vid, render=render, tracer=tracer, init_log_map=log_map,
@@ -261,7 +267,8 @@ def _optimize(problem, settings, checkpoint, fingerprint, snapshot, snapshot_at,
                 params.pitch.fill_(ck["params"]["pitch_rad"])
                 params.exposure.fill_(ck["params"]["exposure_ev"])
             opt.load_state_dict(ck["optimizer"])
-            start, curve, offset = int(ck["iteration"]), list(ck["curve"]), float(ck["elapsed"]) - (time.perf_counter() - t0)
+            start, curve = int(ck["iteration"]), list(ck["curve"])
+            offset = float(ck["elapsed"]) - (time.perf_counter() - t0)
     setup_seconds = time.perf_counter() - t0
     snaps = set(int(s) for s in snapshot_at)
     paused = 0.0
@@ -278,10 +285,14 @@ def _optimize(problem, settings, checkpoint, fingerprint, snapshot, snapshot_at,
         loss = weight[int(seq[it])] * objective.data_loss(env, int(seq[it]), it)
         if settings.lambda_tv:
             loss = loss + settings.lambda_tv * tv_log(params.log_map)
+        value = float(loss.detach())
+        if not np.isfinite(value):  # never seen; a guard so a fit can not silently write NaN maps
+            raise FloatingPointError(f"envfit iteration {it} (frame {int(seq[it])}): objective is {value}; "
+                                     "check the frames and buffers for extreme values")
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-        curve.append({"iteration": it, "seconds": round(now(), 4), "loss": float(loss.detach())})
+        curve.append({"iteration": it, "seconds": round(now(), 4), "loss": value})
         if checkpoint is not None and settings.checkpoint_every and (it + 1) % settings.checkpoint_every == 0 \
                 and it + 1 < settings.iterations:
             tp = time.perf_counter()

@@ -84,7 +84,8 @@ def bilinear_taps_dr(d, height: int, width: int):
     c1 = dr.select(c0 + 1 >= width, c0 + 1 - width, c0 + 1)
     c0 = dr.select(c0 < 0, c0 + width, c0)
     r1 = dr.minimum(r0 + 1, height - 1)
-    idx = [mi.UInt32(r0 * width + c0), mi.UInt32(r0 * width + c1), mi.UInt32(r1 * width + c0), mi.UInt32(r1 * width + c1)]
+    idx = [mi.UInt32(r0 * width + c0), mi.UInt32(r0 * width + c1),
+           mi.UInt32(r1 * width + c0), mi.UInt32(r1 * width + c1)]
     wts = [(1 - fc) * (1 - fr), fc * (1 - fr), (1 - fc) * fr, fc * fr]
     return idx, wts
 
