@@ -49,7 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lightcrafter import envmap, io  # noqa: E402
 from lightcrafter.envfit import synthetic as es  # noqa: E402
 from lightcrafter.envfit.evaluate import TrueObjective, sh_error  # noqa: E402
-from lightcrafter.envfit.fit import FitSettings, fit_envmap, optimize, prepare  # noqa: E402
+from lightcrafter.envfit.fit import DEFAULT_RENDER, FitSettings, fit_envmap, optimize, prepare  # noqa: E402
 from lightcrafter.envfit.model import EnvParams, MapHead, log_of_map  # noqa: E402
 from lightcrafter.envfit.transport import memory_bound_bytes  # noqa: E402
 from lightcrafter.proxy.renderer import RenderSettings  # noqa: E402
@@ -281,7 +281,7 @@ def main() -> None:
         print(f"speedup: {speed}", flush=True)
         # whole default-size fit (pseudo video included), as the pipeline runs it
         t0 = time.perf_counter()
-        man = fit_envmap(clip, frames_dir, root / "fit", base, RenderSettings())
+        man = fit_envmap(clip, frames_dir, root / "fit", base, DEFAULT_RENDER)
         whole = time.perf_counter() - t0
         default_clip = {"width": a.width, "height": a.height, "frames": a.frames, "iterations": a.iterations,
                         "fast_prepare_seconds": prep_fast, "fast_solve_seconds": runs["fast"][1]["solve_seconds"],

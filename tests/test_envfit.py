@@ -275,6 +275,22 @@ def test_static_and_one_frame_clips(tmp_path):
         assert pb1.video.fitted == [0] and np.isfinite(optimize(pb1, s1).env).all()
 
 
+def test_moving_objects_use_each_frames_own_visibility(scene, tmp_path):
+    """scene_static false (objects move): R's visibility is the frame's own mesh, for both solvers."""
+    import shutil
+
+    clip = tmp_path / "dyn"
+    shutil.copytree(scene["clip"], clip)
+    man = json.loads((clip / "buffers.json").read_text())
+    man["scene_static"] = False
+    io.write_json(clip / "buffers.json", man)
+    for solver in ("fast", "reference"):
+        s = FitSettings(solver=solver, iterations=10, ref_spp=2, **QUICK)
+        pb = prepare(clip, scene["frames_dir"], s)
+        assert pb.render.visibility == "frame"
+        assert np.isfinite(optimize(pb, s).env).all()
+
+
 def test_log_of_zero_radiance_is_floored():
     env = np.ones((4, 8, 3), np.float32)
     env[1, 2] = 0.0

@@ -59,6 +59,9 @@ from .model import EnvParams, MapHead, log_of_map, make_adam, resize_map, tv_log
 from .tracing import Tracer, bilinear_taps
 
 SOLVERS = ("fast", "reference")
+# R's settings for fitting and for the pseudo-input video: visibility 'auto' = the clip's aggregate
+# mesh for static scenes, each frame's own mesh when objects move (lightcrafter.proxy.clip).
+DEFAULT_RENDER = RenderSettings(visibility="auto")
 
 
 @dataclass(frozen=True)
@@ -188,7 +191,7 @@ def _initial_scale(tracer: Tracer, views, video, env: np.ndarray, spp: int, seed
 
 
 def prepare(clip: str | Path, frames_dir: str | Path, settings: FitSettings,
-            render: RenderSettings = RenderSettings(), init_map: np.ndarray | str | Path | None = None,
+            render: RenderSettings = DEFAULT_RENDER, init_map: np.ndarray | str | Path | None = None,
             cache_frames: bool | None = None) -> Problem:
     """Load and check the inputs, build R's visibility and the initial map (see module doc)."""
     if settings.solver not in SOLVERS:
@@ -330,7 +333,7 @@ def fit_fingerprint(clip: Path, frames: np.ndarray, settings: FitSettings, rende
 
 
 def fit_envmap(clip: str | Path, frames_dir: str | Path, out_dir: str | Path, settings: FitSettings = FitSettings(),
-               render: RenderSettings = RenderSettings(), init_map: str | Path | np.ndarray | None = None,
+               render: RenderSettings = DEFAULT_RENDER, init_map: str | Path | np.ndarray | None = None,
                extra: dict | None = None, render_pseudo: bool = True) -> dict:
     """Fit, write the outputs listed in the module doc, and return the manifest (fit.json)."""
     t0 = time.perf_counter()

@@ -71,7 +71,7 @@ def write_synthetic_clip(root: str | Path, n: int = 5, width: int = 32, height: 
 
 
 def render_video(clip: str | Path, env: np.ndarray, frames_dir: str | Path, spp: int = 64, seed: int = 1234,
-                 settings: RenderSettings = RenderSettings()) -> np.ndarray:
+                 settings: RenderSettings = RenderSettings(visibility="auto")) -> np.ndarray:
     """R's render of every frame of ``clip`` under ``env`` (world frame), written to ``frames_dir``."""
     from lightcrafter.clip import read_clip
 
