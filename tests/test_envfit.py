@@ -402,6 +402,14 @@ def test_killed_fit_resumes_from_its_checkpoint(scene, tmp_path):
     assert other.stats["resumed_from"] is None
 
 
+def test_fast_fit_is_deterministic(scene):
+    s = FitSettings(iterations=40, **QUICK)
+    a = optimize(prepare(scene["clip"], scene["frames_dir"], s), s)
+    b = optimize(prepare(scene["clip"], scene["frames_dir"], s), s)
+    np.testing.assert_array_equal(a.params["log_map"], b.params["log_map"])
+    assert [c["loss"] for c in a.curve] == [c["loss"] for c in b.curve]
+
+
 def test_data_weights_and_memory_bound(scene):
     pb = prepare(scene["clip"], scene["frames_dir"], FitSettings())
     w = data_weights(pb.video, "sum")
