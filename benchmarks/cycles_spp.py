@@ -1,7 +1,9 @@
-"""Error against run time of the Cycles ground truth: samples per pixel vs PSNR to a high-spp reference.
+"""Error against run time of the Cycles ground truth: samples per pixel vs PSNR to a high-spp reference,
+for three settings: raw path tracing, an indirect-light clamp, and the OIDN denoiser.
 
-Renders frame 0 of the ``orbit`` trajectory of lightcrafter.blender.testing.tiny_spec under
-lighting L0 at each spp level and once at ``--ref-spp`` with a different seed (so the reference
+Renders frame 0 of the first trajectory of the default run's first scene (results/scenes/s0000, at the
+config's resolution; --tiny uses lightcrafter.blender.testing.tiny_spec instead) under its source
+lighting at each spp level and once at ``--ref-spp`` raw with a different seed (so the reference
 does not share the low-spp samples), and writes
 
     results/bench/cycles_spp.json   (shape of docs/architecture.md, metric psnr_db)
@@ -9,9 +11,11 @@ does not share the low-spp samples), and writes
 
 PSNR (dB, peak 1) is computed on *display* values (lightcrafter.io.linear_to_display, 0 EV:
 sRGB-encoded, clipped to [0, 1]), i.e. what the refiner sees; ``psnr_linear_db`` (linear radiance
-clipped to [0, 1]) is recorded beside it. Seconds are the wall time of posing the frame and one render
-call (scene update, path tracing, EXR write/read) with the default Cycles CPU threads. The chosen spp is the smallest
-level whose display PSNR is at least ``--target-db``.
+clipped to [0, 1]) is recorded beside it, and ``firefly_fraction``: the share of pixels whose display
+value exceeds the reference's by more than 0.25 (isolated bright speckles). Seconds are the wall time
+of posing the frame and one render call (scene update, path tracing, denoising, EXR write/read) with
+the default Cycles CPU threads. The chosen setting is the cheapest (series, spp) whose display PSNR is
+at least ``--target-db`` and whose firefly fraction is under 1e-3.
 
     .venv/bin/python benchmarks/cycles_spp.py            # ~1-2 minutes on 2 cores at 96x64
 """
@@ -35,7 +39,7 @@ from lightcrafter.metrics import psnr_db  # noqa: E402
 from lightcrafter.blender import build, render, testing  # noqa: E402
 
 
-def render_rgb_once(built, spec: dict, spp: int, seed: int) -> tuple[np.ndarray, float]:
+def render_rgb_once(built, spec: dict, spp: int, seed: int, denoiser=None, clamp_indirect=0.0) -> tuple[np.ndarray, float]:
     """Linear RGB (H, W, 3) of frame 0 at ``spp`` samples and the seconds it took.
 
     The frame is re-posed inside the timed block, as render_rgb does for every frame, so the
@@ -49,6 +53,8 @@ def render_rgb_once(built, spec: dict, spp: int, seed: int) -> tuple[np.ndarray,
         filter_width_px=render.RGB_FILTER_WIDTH_PX,
         film_transparent=False,
         buffers=False,
+        denoiser=denoiser,
+        clamp_indirect=clamp_indirect,
     )
     t0 = time.perf_counter()
     build.set_frame(built, spec["trajectories"][0]["frames"][0])
@@ -57,85 +63,72 @@ def render_rgb_once(built, spec: dict, spp: int, seed: int) -> tuple[np.ndarray,
     return np.stack([ch[f"Combined.{c}"] for c in "RGB"], axis=-1), seconds
 
 
+SERIES = {"raw": (None, 0.0), "clamped": (None, 1.0), "denoised": ("oidn", 0.0)}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--spp", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64])
     ap.add_argument("--ref-spp", type=int, default=1024)
-    ap.add_argument("--width", type=int, default=96)
-    ap.add_argument("--height", type=int, default=64)
-    ap.add_argument("--target-db", type=float, default=30.0, help="display PSNR the chosen spp must reach")
+    ap.add_argument("--scene", type=Path, default=Path("results/scenes/s0000/scene.json"))
+    ap.add_argument("--tiny", action="store_true", help="use the hand-built tiny scene instead of a pipeline scene")
+    ap.add_argument("--width", type=int, default=None, help="override the scene's resolution")
+    ap.add_argument("--height", type=int, default=None)
+    ap.add_argument("--target-db", type=float, default=30.0, help="display PSNR the chosen setting must reach")
     ap.add_argument("--out", type=Path, default=Path("results/bench/cycles_spp.json"))
     args = ap.parse_args(argv)
 
     with tempfile.TemporaryDirectory(prefix="lc_bench_") as tmp:
-        spec = testing.tiny_spec(Path(tmp), width=args.width, height=args.height, num_frames=1)
-        built = build.build_scene(spec, light_id="L0")
+        if args.tiny or not args.scene.is_file():
+            spec = testing.tiny_spec(Path(tmp), width=args.width or 96, height=args.height or 64, num_frames=1)
+            light, what = "L0", "lightcrafter.blender.testing.tiny_spec, trajectory 'orbit' frame 0, lighting L0"
+        else:
+            spec = io.read_json(args.scene)
+            if args.width:
+                spec["resolution"] = {"width": args.width, "height": args.height}
+            light = spec["trajectories"][0]["source_light"]
+            what = f"{args.scene}, trajectory {spec['trajectories'][0]['id']} frame 0, lighting {light}"
+        res = spec["resolution"]
+        built = build.build_scene(spec, light_id=light)
         ref, ref_seconds = render_rgb_once(built, spec, args.ref_spp, seed=12345)
         ref_display = io.linear_to_display(ref)
         points = []
-        for spp in args.spp:
-            img, seconds = render_rgb_once(built, spec, spp, seed=0)
-            points.append(
-                {
-                    "setting": spp,
-                    "seconds": round(seconds, 3),
-                    "value": round(psnr_db(io.linear_to_display(img), ref_display), 2),
+        for series, (den, clamp) in SERIES.items():
+            for spp in args.spp:
+                img, seconds = render_rgb_once(built, spec, spp, seed=0, denoiser=den, clamp_indirect=clamp)
+                disp = io.linear_to_display(img)
+                points.append({
+                    "series": series, "setting": spp, "seconds": round(seconds, 3),
+                    "value": round(psnr_db(disp, ref_display), 2),
                     "psnr_linear_db": round(psnr_db(np.clip(img, 0, 1), np.clip(ref, 0, 1)), 2),
-                }
-            )
-            print(
-                f"spp {spp:4d}: {seconds:6.2f} s  PSNR display {points[-1]['value']:.2f} dB  "
-                f"linear {points[-1]['psnr_linear_db']:.2f} dB",
-                flush=True,
-            )
-    good = [p["setting"] for p in points if p["value"] >= args.target_db]
-    chosen = min(good) if good else max(p["setting"] for p in points)
+                    "firefly_fraction": float(((disp - ref_display).max(axis=-1) > 0.25).mean()),
+                })
+                p = points[-1]
+                print(f"{series:9s} spp {spp:4d}: {seconds:6.2f} s  PSNR display {p['value']:.2f} dB  "
+                      f"fireflies {p['firefly_fraction']:.4f}", flush=True)
+    good = [p for p in points if p["value"] >= args.target_db and p["firefly_fraction"] < 1e-3]
+    best = min(good, key=lambda p: p["seconds"]) if good else max(points, key=lambda p: p["value"])
     result = {
         "name": "cycles_spp",
-        "varied": "spp",
+        "varied": "spp (series: raw, clamped = indirect clamp 1.0, denoised = OIDN)",
         "metric": "psnr_db",
         "higher_is_better": True,
         "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
-        "chosen": chosen,
+        "chosen": best["setting"],
+        "chosen_series": best["series"],
         "points": points,
-        "reference": {"spp": args.ref_spp, "seconds": round(ref_seconds, 3), "seed": 12345},
-        "resolution": {"width": args.width, "height": args.height},
+        "reference": {"spp": args.ref_spp, "seconds": round(ref_seconds, 3), "seed": 12345, "denoiser": None},
+        "resolution": res,
         "psnr_on": "display values: lightcrafter.io.linear_to_display (0 EV, sRGB, clipped), peak 1",
-        "scene": "lightcrafter.blender.testing.tiny_spec, trajectory 'orbit' frame 0, lighting L0",
-        "rule": f"smallest spp with display PSNR >= {args.target_db} dB",
+        "scene": what,
+        "rule": f"cheapest (series, spp) with display PSNR >= {args.target_db} dB and firefly fraction < 1e-3",
     }
     io.write_json(args.out, result)
-    _plot(result, args.out.with_suffix(".png"))
-    print(f"chosen spp {chosen}; wrote {args.out} and {args.out.with_suffix('.png')}")
+    from lightcrafter.report import plot_bench
+
+    plot_bench(result, args.out.with_suffix(".png"))
+    print(f"chosen: {best['series']} at {best['setting']} spp; wrote {args.out} and {args.out.with_suffix('.png')}")
     return 0
-
-
-def _plot(result: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    pts = result["points"]
-    fig, ax = plt.subplots(figsize=(5, 3.5), dpi=120)
-    ax.plot([p["seconds"] for p in pts], [p["value"] for p in pts], "o-")
-    for p in pts:
-        ax.annotate(
-            str(p["setting"]), (p["seconds"], p["value"]), textcoords="offset points", xytext=(4, -10), fontsize=8
-        )
-        if p["setting"] == result["chosen"]:
-            ax.plot(p["seconds"], p["value"], "r*", ms=14, label=f"chosen: {p['setting']} spp")
-    ax.set_xscale("log")
-    ax.set_xlabel("seconds per frame (log)")
-    ax.set_ylabel("PSNR vs reference, display [dB]")
-    res = result["resolution"]
-    ax.set_title(f"Cycles spp ({res['width']}x{res['height']}, ref {result['reference']['spp']} spp)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    with io.atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -48,10 +48,12 @@ def _complete(shape):
 
 def render_views(views: list[FrameView], lighting: Lighting, settings: RenderSettings, out_dir: Path,
                  edits: list[MaterialEdit] = (), cache: bool = True,
-                 inputs=None) -> tuple[list[np.ndarray], ProxyRenderer, float]:
+                 inputs=None, visibility_from: ProxyRenderer | None = None) -> tuple[list[np.ndarray], ProxyRenderer, float]:
     """Render (or reuse complete) frames into ``out_dir``; returns (frames, renderer, render seconds).
 
     ``inputs`` (JSON-able) names what the frames come from: frames of other inputs are re-rendered.
+    ``visibility_from``: a renderer already prepared on these views with the same geometry settings
+    (its clip visibility mesh is reused instead of rebuilt; the frames are the same).
     """
     if edits:
         views = [FrameView(apply_edits(v.buffers, edits), v.K, v.c2w, v.key + "#edited") for v in views]
@@ -61,7 +63,10 @@ def render_views(views: list[FrameView], lighting: Lighting, settings: RenderSet
     t0 = time.perf_counter()
     if todo:
         folder.stamp()
-        renderer.prepare(views)
+        if visibility_from is not None and settings.visibility in ("aggregate", "auto"):
+            renderer.share_visibility(visibility_from)
+        else:
+            renderer.prepare(views)
         for i in todo:
             io.write_rgb_exr(folder.path(i), renderer.render(views[i], frame=i))
     seconds = time.perf_counter() - t0
@@ -70,11 +75,11 @@ def render_views(views: list[FrameView], lighting: Lighting, settings: RenderSet
 
 def render_clip(clip: str | Path, lighting: Lighting | str | Path, out_dir: str | Path, *,
                 settings: RenderSettings = RenderSettings(), edits: list[MaterialEdit] = (),
-                extra: dict | None = None) -> dict:
+                extra: dict | None = None, visibility_from: ProxyRenderer | None = None) -> dict:
     """Render every frame of ``clip`` (folder or its buffers.json) under ``lighting``; return the manifest.
 
     Visibility 'auto' follows the clip's own ``scene_static`` flag. ``extra`` is copied into the manifest
-    (scene id, trajectory, light id, pair kind ...).
+    (scene id, trajectory, light id, pair kind ...). ``visibility_from``: see :func:`render_views`.
     """
     out_dir = Path(out_dir)
     views, info = read_clip(clip)
@@ -91,7 +96,8 @@ def render_clip(clip: str | Path, lighting: Lighting | str | Path, out_dir: str 
     # Frames of other inputs (a re-made clip, another lighting or settings) are never reused.
     inputs = {"what": "proxy", "clip": clipmod.identity(info.root), "lighting": lighting_identity(lighting),
               "settings": _settings_dict(settings), "edits": [_edit_identity(e) for e in edits]}
-    frames, renderer, seconds = render_views(views, lighting, settings, out_dir, edits, inputs=inputs)
+    frames, renderer, seconds = render_views(views, lighting, settings, out_dir, edits, inputs=inputs,
+                                             visibility_from=None if edits else visibility_from)
     preview = out_dir.with_suffix(".mp4")
     io.write_video(preview, io.to_uint8(io.linear_to_display(np.stack(frames))), fps=info.fps)
     h, w = frames[0].shape[:2]

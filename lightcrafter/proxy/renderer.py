@@ -150,6 +150,32 @@ def _mis(a, b):
     return dr.select(a + b > 0, a / dr.maximum(a + b, 1e-30), 0.0)
 
 
+def camera_hit(prim: _Primary, pos, shadow_offset_px: float):
+    """Camera ray through film position ``pos`` (Point2f in [0, 1]^2, pixel corners at the edges),
+    its primary hit and the shading set-up of R: (ray, si, hit, albedo, roughness, metallic,
+    shading frame (two-sided normal), wo (local, clamped above the surface), shadow-ray origin)."""
+    ray, _ = prim.sensor.sample_ray(0.0, 0.0, pos, mi.Point2f(0.5))
+    si = prim.scene.ray_intersect(ray)
+    hit = si.is_valid()
+    face = dr.select(hit, si.prim_index, 0)
+    p_idx = dr.gather(mi.UInt32, prim.face_pixel, face, hit)
+    a = prim.attrs
+    albedo = dr.gather(mi.Color3f, a["albedo"], p_idx, hit)
+    rough = dr.gather(mi.Float, a["roughness"], p_idx, hit)
+    metal = dr.gather(mi.Float, a["metallic"], p_idx, hit)
+    n = dr.gather(mi.Vector3f, a["normal"], p_idx, hit)
+    wo_w = -ray.d
+    n_len = dr.norm(n)
+    n = dr.select(n_len > 1e-6, n / dr.maximum(n_len, 1e-6), si.n)
+    n = dr.select(dr.dot(n, wo_w) < 0, -n, n)  # two-sided
+    frame = mi.Frame3f(n)
+    wo = frame.to_local(wo_w)
+    wo = dr.normalize(mi.Vector3f(wo.x, wo.y, dr.maximum(wo.z, material.COS_MIN)))
+    eps = shadow_offset_px * dr.maximum(si.t, 1e-3) / prim.fx + 1e-4
+    p0 = si.p + n * eps
+    return ray, si, hit, albedo, rough, metal, frame, wo, p0
+
+
 class ProxyRenderer:
     """Render frames of one clip under one :class:`Lighting`.
 
@@ -232,7 +258,14 @@ class ProxyRenderer:
         self._set_shadow(verts, faces, "aggregate")
 
     # ------------------------------------------------------------------ rendering
-    def render(self, view: FrameView, frame: int = 0) -> np.ndarray:
+    def share_visibility(self, other: "ProxyRenderer") -> None:
+        """Use ``other``'s prepared clip visibility mesh instead of building it again (renderers of the
+        same clip and settings under other lightings; shadow rays test geometry only)."""
+        self._shadow, self._shadow_key = other._shadow, other._shadow_key
+
+    def frame_state(self, view: FrameView) -> tuple[_Primary, object]:
+        """(primary geometry of ``view``, shadow scene) exactly as :meth:`render` uses them (built or
+        taken from the cache). Envmap fitting traces its rays through these."""
         s = self.settings
         key = view.cache_key()
         if not self.cache or self._primary_key != key or self._primary is None:
@@ -245,7 +278,11 @@ class ProxyRenderer:
                 self.prepare([view])
             else:
                 self._set_shadow(np.zeros((0, 3)), np.zeros((0, 3)), "none")
-        prim = self._primary
+        return self._primary, self._shadow
+
+    def render(self, view: FrameView, frame: int = 0) -> np.ndarray:
+        s = self.settings
+        prim, _ = self.frame_state(view)
         h, w = prim.height, prim.width
         npix = h * w
         spp = max(1, int(s.spp))
@@ -280,25 +317,7 @@ class ProxyRenderer:
         row = mi.Float(pix // prim.width)
         jit = sampler.next_2d()
         pos = mi.Point2f((col + jit.x) / prim.width, (row + jit.y) / prim.height)
-        ray, _ = prim.sensor.sample_ray(0.0, 0.0, pos, mi.Point2f(0.5))
-        si = prim.scene.ray_intersect(ray)
-        hit = si.is_valid()
-        face = dr.select(hit, si.prim_index, 0)
-        p_idx = dr.gather(mi.UInt32, prim.face_pixel, face, hit)
-        a = prim.attrs
-        albedo = dr.gather(mi.Color3f, a["albedo"], p_idx, hit)
-        rough = dr.gather(mi.Float, a["roughness"], p_idx, hit)
-        metal = dr.gather(mi.Float, a["metallic"], p_idx, hit)
-        n = dr.gather(mi.Vector3f, a["normal"], p_idx, hit)
-        wo_w = -ray.d
-        n_len = dr.norm(n)
-        n = dr.select(n_len > 1e-6, n / dr.maximum(n_len, 1e-6), si.n)
-        n = dr.select(dr.dot(n, wo_w) < 0, -n, n)  # two-sided
-        frame = mi.Frame3f(n)
-        wo = frame.to_local(wo_w)
-        wo = dr.normalize(mi.Vector3f(wo.x, wo.y, dr.maximum(wo.z, material.COS_MIN)))
-        eps = s.shadow_offset_px * dr.maximum(si.t, 1e-3) / prim.fx + 1e-4
-        p0 = si.p + n * eps
+        ray, si, hit, albedo, rough, metal, frame, wo, p0 = camera_hit(prim, pos, s.shadow_offset_px)
 
         L = mi.Color3f(0.0)
         env = self._env
