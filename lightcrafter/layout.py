@@ -81,9 +81,12 @@ class Layout:
         """The fitted source lighting of a real clip (lightcrafter.lighting/1 file)."""
         return self._p("envfit", clip, "lighting.json")
 
+    def envfit_manifest(self, clip) -> str:
+        return self._p("envfit", clip, "fit.json")
+
     def pseudo_input(self, clip) -> str:
-        """R(S, L_hat_source) of a real clip: the proxy of a real pseudo-pair."""
-        return self._p("proxy_real", clip, "source")
+        """R(S, L_hat_source) of a real clip (written by the envmap fit): the proxy of a real pseudo-pair."""
+        return self._p("envfit", clip, "pseudo")
 
     # datasets, refiner, evaluation, report
     def pairs(self, variant) -> str:

@@ -54,7 +54,25 @@ def main():
                     help="R's shadow mesh: auto = aggregate for static scenes, frame when objects move")
     ap.add_argument("--visibility-max-faces", type=int, default=50000)
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (Dr.Jit)")
+    ap.add_argument("--settings-json", default=None,
+                    help="FitSettings overrides as JSON (the workflow passes config envfit); win over the flags")
     a = ap.parse_args()
+    import json
+    from pathlib import Path
+
+    from lightcrafter.clip import is_skipped
+    from lightcrafter.io import write_json
+
+    reason = is_skipped(a.clip)
+    if reason:  # the reconstruction stack left the clip out: so is its pseudo-pair (datasets count it)
+        out = Path(a.out)
+        write_json(out / "pseudo.json", {"format": "lightcrafter.proxy/1", "skipped": reason})
+        write_json(out / "fit.json", {"skipped": reason, "clip": a.clip})
+        print(f"{a.out}: left out ({reason})")
+        return
+    over = json.loads(a.settings_json) if a.settings_json else {}
+    if a.init_map is None and (Path(a.clip) / "envmap_init.exr").is_file():  # the paper stack's DiffusionLight map
+        a.init_map = str(Path(a.clip) / "envmap_init.exr")
     settings = FitSettings(
         solver=a.solver, env_height=a.env_height, env_width=a.env_width, iterations=a.iterations, lr=a.lr,
         lambda_tv=a.lambda_tv, data_reduction=a.data_reduction, frame_stride=a.frame_stride,
@@ -63,6 +81,14 @@ def main():
         use_background=not a.no_background, ref_spp=a.ref_spp, ref_pixels=a.ref_pixels,
         transport_spp=a.transport_spp, transport_pixels=a.transport_pixels, threads=a.threads,
         checkpoint_every=a.checkpoint_every)
+    if over:
+        from dataclasses import fields, replace
+
+        known = {f.name for f in fields(FitSettings)}
+        unknown = sorted(set(over) - known)
+        if unknown:
+            raise ValueError(f"unknown envfit key(s) {unknown}; known: {sorted(known)}")
+        settings = replace(settings, **{k: tuple(v) if k == "betas" else v for k, v in over.items()})
     render = RenderSettings(spp=a.spp, seed=a.seed, rel_threshold=a.rel_threshold, visibility=a.visibility,
                             visibility_mesh=VisibilitySettings(rel_threshold=a.rel_threshold,
                                                                max_faces=a.visibility_max_faces))

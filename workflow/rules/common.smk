@@ -276,6 +276,11 @@ def real_scene_static(wildcards):
     return int(REAL[wildcards.clip]["scene_static"])
 
 
+def clip_dir_of_input(wildcards, input):
+    """A clip folder from the rule's 'clip' manifest input."""
+    return str(Path(input.clip).parent)
+
+
 def manifest_stem_of_input(wildcards, input):
     """Frames folder beside the rule's 'video' manifest input."""
     return str(Path(input.video).with_suffix(""))

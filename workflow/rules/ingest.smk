@@ -1,5 +1,6 @@
 # Real videos -> real pseudo-pairs: ingest a clip (linear frames at the training size), run the same
-# Phi as the synthetic branch, fit the source environment map, render the pseudo-input R(S, L_hat).
+# Phi as the synthetic branch, fit the source environment map (lightcrafter.envfit), which also renders
+# the pseudo-input R(S, L_hat) of every frame: the pair's proxy.
 
 
 rule ingest_video:
@@ -65,7 +66,8 @@ rule fit_envmap:
         clip=L.recon_clip_manifest("real", "{clip}"),
         video=L.real_frames("{clip}") + ".json",
     output:
-        lighting=L.envfit_lighting("{clip}"),
+        fit=L.envfit_manifest("{clip}"),
+        pseudo=L.pseudo_input("{clip}") + ".json",
     log:
         "logs/envfit/{clip}.log",
     benchmark:
@@ -78,37 +80,12 @@ rule fit_envmap:
         runtime=30,
     params:
         script=script_path("fit_envmap.py"),
+        clip_dir=clip_dir_of_input,
         out_dir=parent_dir,
         frames=manifest_stem_of_input,
         settings=as_json(config.get("envfit", {})),
-    shell:
-        "python {params.script} --clip {input.clip} --frames {params.frames} --out {params.out_dir} "
-        "--settings-json {params.settings:q} --threads {threads} > {log} 2>&1"
-
-
-rule render_pseudo_input:
-    input:
-        clip=L.recon_clip_manifest("real", "{clip}"),
-        lighting=L.envfit_lighting("{clip}"),
-    output:
-        manifest=L.pseudo_input("{clip}") + ".json",
-    log:
-        "logs/render_proxy/real_{clip}.log",
-    benchmark:
-        "logs/benchmark/render_proxy/real_{clip}.tsv"
-    conda:
-        "../../envs/mitsuba.yaml"
-    threads: 1
-    resources:
-        mem_mb=3000,
-        runtime=30,
-    params:
-        script=script_path("render_proxy.py"),
-        out_dir=manifest_stem,
         spp=config["proxy"]["spp"],
-        visibility=config["proxy"]["visibility"],
-        rel_threshold=config["proxy"]["rel_threshold"],
     shell:
-        "python {params.script} --clip {input.clip} --lighting {input.lighting} --out {params.out_dir} "
-        "--spp {params.spp} --visibility {params.visibility} --rel-threshold {params.rel_threshold} "
+        "python {params.script} --clip {params.clip_dir} --frames {params.frames} --out {params.out_dir} "
+        "--saturation-level 1.0 --spp {params.spp} --settings-json {params.settings:q} "
         "--threads {threads} > {log} 2>&1"
