@@ -21,6 +21,8 @@ include: "workflow/rules/ingest.smk"
 include: "workflow/rules/proxy.smk"
 include: "workflow/rules/dataset.smk"
 include: "workflow/rules/refiner.smk"
+include: "workflow/rules/longform.smk"
+include: "workflow/rules/edit.smk"
 include: "workflow/rules/report.smk"
 
 
@@ -51,10 +53,21 @@ rule ablations:
         ],
 
 
+rule longform_check:
+    input:
+        L.longform_metrics(),
+
+
+rule edits:
+    input:
+        [L.edit_refined(k) + ".json" for k in EDIT_KINDS],
+
+
 rule all:
     default_target: True
     input:
         rules.ground_truth.input,
         L.summary("reconstruction"),
         refiner_outputs(),
+        extra_outputs(),
         L.report_index(),

@@ -88,6 +88,37 @@ class Layout:
         """R(S, L_hat_source) of a real clip (written by the envmap fit): the proxy of a real pseudo-pair."""
         return self._p("envfit", clip, "pseudo")
 
+    # long-form check and scene edits
+    def longform_spec(self) -> str:
+        return self._p("longform", "scene.json")
+
+    def longform_clip_manifest(self, traj) -> str:
+        return self._p("longform", "gt", traj, "buffers.json")
+
+    def longform_rgb(self, traj, light) -> str:
+        return self._p("longform", "gt", traj, "rgb", light)
+
+    def longform_proxy(self, light) -> str:
+        return self._p("longform", "proxy", light)
+
+    def longform_metrics(self) -> str:
+        return self._p("longform", "metrics.json")
+
+    def edit_record(self, kind) -> str:
+        return self._p("edits", kind, "edit.json")
+
+    def edit_clip_manifest(self, kind) -> str:
+        return self._p("edits", kind, "clip", "buffers.json")
+
+    def edit_lighting(self, kind) -> str:
+        return self._p("edits", kind, "lighting.json")
+
+    def edit_proxy(self, kind) -> str:
+        return self._p("edits", kind, "proxy")
+
+    def edit_refined(self, kind) -> str:
+        return self._p("edits", kind, "refined")
+
     # datasets, refiner, evaluation, report
     def pairs(self, variant) -> str:
         return self._p("datasets", variant, "pairs.jsonl")

@@ -35,6 +35,15 @@ def scene_lighting_file(spec: dict, light_id: str, traj_id: str, path: Path, ext
                                extra={"scene_id": spec.get("scene_id"), "light": light_id})
 
 
+def _unused_asset(spec: dict, manifest: str | None) -> str:
+    used = {o.get("asset_id") for o in spec["objects"]}
+    if manifest:
+        for a in sorted(io.read_json(manifest)["accepted"], key=lambda a: a["id"]):
+            if a["id"] not in used:
+                return a["path"]
+    return next(o["path"] for o in spec["objects"] if o["kind"] == "asset")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--kind", required=True, choices=["light", "material", "object"])
@@ -44,6 +53,8 @@ def main() -> int:
     ap.add_argument("--light", required=True)
     ap.add_argument("--out", required=True)
     ap.add_argument("--settings-json", default="{}")
+    ap.add_argument("--manifest", default=None, help="curated asset manifest (object insertion picks an asset "
+                                                      "the scene does not use)")
     a = ap.parse_args()
     from lightcrafter import clip as clipmod
     from lightcrafter import editing
@@ -76,7 +87,7 @@ def main() -> int:
                 record.update({"object": obj["id"], "centre_m": centre, "radius_m": radius, "edit": edit,
                                "pixels_edited": frac})
             else:
-                glb = s.get("asset") or spec["objects"][0].get("path")
+                glb = s.get("asset") or _unused_asset(spec, a.manifest)
                 loc = s.get("location_m") or editing.free_ground_spot(spec).tolist()
                 views, frac = editing.insert_object(views, glb, loc, float(s.get("yaw_rad", 0.0)), float(s.get("scale", 1.0)))
                 record.update({"asset": str(glb), "location_m": loc, "pixels_covered": frac})

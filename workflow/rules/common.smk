@@ -39,6 +39,7 @@ wildcard_constraints:
     traj=r"t\d+",
     light=r"L\d+",
     clip=r"[A-Za-z0-9][A-Za-z0-9_]*",
+    kind="light|material|object",
     variant="|".join(ds.VARIANTS),
     bench="|".join(ds.BENCHMARKS),
 
@@ -250,7 +251,12 @@ def refiner_outputs():
 
 def report_inputs():
     """What the run report summarises."""
-    return [L.summary("ground_truth"), L.summary("reconstruction"), *refiner_outputs()]
+    return [
+        L.summary("ground_truth"),
+        L.summary("reconstruction"),
+        *refiner_outputs(),
+        *extra_outputs(),
+    ]
 
 
 def results_root(wildcards, output):
@@ -299,3 +305,71 @@ def synthetic_recon_inputs(wildcards):
         "gt": [L.gt_clip_manifest(s, t) for s, t in trajs],
         "real": [L.recon_clip_manifest("real", c) for c in REAL],
     }
+
+
+# ----------------------------------------------------------------------------- long form, edits
+def _first_test_clip():
+    """(scene, trajectory, target light) of the first test scene's first trajectory with a moving camera."""
+    for sid in scenes_in_split("test"):
+        for t in _PLANS[sid]["trajectories"]:
+            if not t["camera_static"] and t["target_lights"]:
+                return sid, t["id"], t["target_lights"][0]
+    return None, None, None
+
+
+def _longform_settings():
+    lf = config.get("longform", {})
+    scene, _, _ = _first_test_clip()
+    scfg = dict(
+        config["scenes"],
+        num_frames=int(lf.get("num_frames", 201)),
+        trajectories_per_scene=1,
+        motions=[lf.get("motion", "orbit_static")],
+        splits=config["scenes"]["splits"],
+    )
+    plan = plan_scene(scfg, SEED, int(scene[1:])) if scene else None
+    light = plan["trajectories"][0]["target_lights"][0] if plan else None
+    return {
+        "scene": scene,
+        "light": light,
+        "variant": lf.get("variant", "full"),
+        "config": {
+            "seed": SEED,
+            "scenes": scfg,
+            "render": dict(config["render"], spp=int(lf.get("spp", 4))),
+        },
+    }
+
+
+LONGFORM = _longform_settings()
+_E = _first_test_clip()
+EDIT = {
+    "scene": _E[0],
+    "traj": _E[1],
+    "light": _E[2],
+    "variant": config.get("edits", {}).get("variant", "full"),
+}
+EDIT_KINDS = ["light", "material", "object"]
+
+
+def edit_settings(wildcards):
+    return as_json(config.get("edits", {}).get(wildcards.kind, {}))
+
+
+def edit_render_clip(wildcards):
+    """Light insertion renders the reconstructed clip itself; material and object edits their edited clip."""
+    if wildcards.kind == "light":
+        return str(Path(L.aligned_clip_manifest(EDIT["scene"], EDIT["traj"])).parent)
+    return str(Path(L.edit_clip_manifest(wildcards.kind)).parent)
+
+
+def extra_outputs():
+    """Long-form check and scene edits, when a test scene exists and enabled in config."""
+    if EDIT["scene"] is None:
+        return []
+    out = []
+    if config.get("longform", {}).get("enabled", True):
+        out.append(L.longform_metrics())
+    if config.get("edits", {}).get("enabled", True):
+        out += [L.edit_refined(k) + ".json" for k in EDIT_KINDS]
+    return out

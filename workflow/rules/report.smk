@@ -1,5 +1,6 @@
-# The run report: ground-truth counts, evaluation tables, and the cost/quality curves of any
-# benchmarks already in results/bench (written by `make bench`).
+# The run report (lightcrafter.report): Tables 1 and 2, clips, reconstruction errors, leave-out counts,
+# per-stage cost from logs/benchmark and the projected cost of config/paper.yaml, benchmark curves
+# (results/bench, written by `make bench`), long-form relighting and scene edits when present.
 
 
 rule run_report:
@@ -12,13 +13,21 @@ rule run_report:
     benchmark:
         "logs/benchmark/run_report.tsv"
     conda:
-        "../../envs/assets.yaml"
+        "../../envs/refiner.yaml"
     threads: 1
     resources:
-        mem_mb=1000,
-        runtime=5,
+        mem_mb=2000,
+        runtime=15,
     params:
         script=script_path("build_report.py"),
         results=results_root,
+        cfg=as_json(
+            {
+                k: config[k]
+                for k in ("seed", "scenes", "render", "proxy", "real", "recon")
+            }
+        ),
+        paper=str(Path(workflow.basedir) / "config" / "paper.yaml"),
     shell:
-        "python {params.script} --results {params.results} > {log} 2>&1"
+        "python {params.script} --results {params.results} --logs logs --config-json {params.cfg:q} "
+        "--project {params.paper} > {log} 2>&1"
