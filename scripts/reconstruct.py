@@ -55,8 +55,6 @@ def main() -> int:
             m = reconstruct_default(frames, out, estimator_path=a.estimator, fps=a.fps, scene_static=bool(a.scene_static),
                                     settings=DefaultSettings.from_dict(settings), name=name, extra={"clip_id": name})
         else:  # the paper's stack: 8-bit frames in, its clip on MegaSAM's grid, then onto the video's grid
-            import shutil
-
             from lightcrafter.recon.default import read_video_frames
             from lightcrafter.recon.paper_stack import reconstruct_paper_stack
             from lightcrafter.recon.resample import onto_video_grid

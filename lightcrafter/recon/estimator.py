@@ -41,15 +41,18 @@ OUTPUT_CHANNELS = {"log_depth": 1, "normal": 3, "albedo": 3, "roughness": 1, "me
 class EstimatorConfig:
     """widths: channels per U-Net level (each level halves the resolution); steps: optimizer steps;
     batch: crops per step; crop: [height, width] of the random training crops (pixels; the network is
-    fully convolutional and sees each crop's full-frame coordinates; null = whole frames); lr: Adam learning rate; eval_every: steps between validation points of the
-    error-against-time curve; seed; threads: torch CPU threads."""
+    fully convolutional and sees each crop's full-frame coordinates; null = whole frames); lr: Adam
+    learning rate; eval_every: steps between validation points of the error-against-time curve;
+    keep_best: keep the weights of the validation point with the lowest normal error (model selection
+    on held-out recon-split clips, never train or test scenes); seed; threads: torch CPU threads."""
 
     widths: list[int] = field(default_factory=lambda: [16, 32, 48, 64])
     steps: int = 400
     batch: int = 8
     crop: list[int] = field(default_factory=lambda: [64, 96])
     lr: float = 2e-3
-    eval_every: int = 100
+    eval_every: int = 25
+    keep_best: bool = True
     seed: int = 0
     threads: int = 2
 
@@ -260,6 +263,7 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1), eta_min=cfg.lr * 0.05)
     curve, seconds = [], 0.0
+    best = (float("inf"), 0, None)  # (validation normal error, step, weights)
     for step in range(1, cfg.steps + 1):
         t0 = time.perf_counter()
         model.train()
@@ -287,7 +291,13 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
         if val and (step % cfg.eval_every == 0 or step == cfg.steps):
             errs = _validation_errors(model, val)
             curve.append({"step": step, "seconds": round(seconds, 2), "loss": float(loss.detach()), **errs})
+            if cfg.keep_best and errs["normal_deg"] < best[0]:
+                best = (errs["normal_deg"], step, {k: v.detach().clone() for k, v in model.state_dict().items()})
             log(f"estimator step {step}: loss {float(loss.detach()):.4f} " + " ".join(f"{k} {v:.3f}" for k, v in errs.items()))
+    if cfg.keep_best and best[2] is not None:
+        model.load_state_dict(best[2])
+        for c in curve:
+            c["selected"] = c["step"] == best[1]
     return model, curve
 
 
@@ -319,7 +329,8 @@ def curve_bench(curve: list[dict], cfg: EstimatorConfig, metric: str = "normal_d
         points += [{"series": key, "setting": c["step"], "seconds": c["seconds"], "value": c[key]} for c in curve]
     return {"name": "gbuffer_estimator", "varied": "training steps (seconds of training on this machine)",
             "metric": metric, "higher_is_better": False, "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
-            "chosen": cfg.steps, "chosen_series": metric, "points": points,
+            "chosen": next((c["step"] for c in curve if c.get("selected")), cfg.steps), "chosen_series": metric,
+            "points": points,
             "note": "validation errors on held-out recon-split trajectories; albedo_psnr_db is higher-is-better"}
 
 
