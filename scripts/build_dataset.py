@@ -33,6 +33,7 @@ def main() -> int:
     what.add_argument("--benchmark", choices=datasets.BENCHMARKS)
     ap.add_argument("--plans-json", required=True, help="JSON {scene_id: scene_plan} or @path")
     ap.add_argument("--real-json", default="{}", help="JSON {clip_id: {split, video, ...}} or @path")
+    ap.add_argument("--mit-json", default="{}", help="JSON {pair_id: {...}} of the MIT benchmark or @path")
     ap.add_argument("--output", required=True)
     a = ap.parse_args()
     out = Path(a.output)
@@ -40,7 +41,7 @@ def main() -> int:
     plans, real = _json_arg(a.plans_json), _json_arg(a.real_json)
     try:
         specs = (datasets.variant_specs(a.variant, layout, plans, real) if a.variant
-                 else datasets.benchmark_specs(a.benchmark, layout, plans, real))
+                 else datasets.benchmark_specs(a.benchmark, layout, plans, real, _json_arg(a.mit_json)))
         records, summary = datasets.build_records(specs, ".", a.variant)
     except DataError as exc:
         print(f"build_dataset: {exc}", file=sys.stderr)

@@ -34,3 +34,19 @@ def paper_config(repo):
     import yaml
 
     return yaml.safe_load((repo / "config" / "paper.yaml").read_text())
+
+
+@pytest.fixture(scope="session")
+def e2e_run(tmp_path_factory):
+    """One uninterrupted run of the whole default target on the tiny config (config/ci.yaml), shared by the
+    end-to-end, kill/resume and SLURM tests. Returns the working directory."""
+    import subprocess
+
+    from workflow_util import venv_env
+
+    wd = tmp_path_factory.mktemp("e2e")
+    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "-d", str(wd), "--configfile",
+           str(REPO / "config" / "ci.yaml")]
+    res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=3600, env=venv_env())
+    assert res.returncode == 0, res.stderr[-5000:]
+    return wd

@@ -114,3 +114,38 @@ def test_second_chunk_and_odd_length_video(tmp_path):
     _write_video(src, 13)
     m = ingest_clip(_clip(src, chunk=1), "odd_c1", tmp_path / "out", width=W, height=H, num_frames=N)
     assert m["source_frames"] == [5, 6, 7, 8, 9] and m["source_total_frames"] == 13
+
+
+def _mit_fixture(root, scenes=("kitchen_a", "office 2"), dirs=3):
+    import imageio.v3 as iio
+
+    for s in scenes:
+        (root / s / "probes").mkdir(parents=True)
+        for i in range(dirs):
+            iio.imwrite(root / s / f"dir_{i}_mip2.jpg", np.full((40, 60, 3), 30 + 60 * i, np.uint8))
+            iio.imwrite(root / s / f"dir_{i}_mip3.jpg", np.full((20, 30, 3), 30 + 60 * i, np.uint8))
+            iio.imwrite(root / s / "probes" / f"dir_{i}_chrome256.jpg", np.zeros((8, 8, 3), np.uint8))
+    return root
+
+
+def test_mit_multi_illumination_layout(tmp_path):
+    from lightcrafter import mit_multi_illum as mit
+
+    root = _mit_fixture(tmp_path / "mit")
+    scenes = mit.scan(root)
+    assert sorted(scenes) == ["kitchen_a", "office 2"] and sorted(scenes["kitchen_a"]) == [0, 1, 2]
+    assert scenes["kitchen_a"][1].name == "dir_1_mip2.jpg"  # mip 3 files are not mixed in
+    p = mit.plan({"root": str(root), "target_dirs": [1, 2]})
+    assert sorted(p["pairs"]) == ["mit_kitchen_a_d0_to_d1", "mit_kitchen_a_d0_to_d2",
+                                  "mit_office_2_d0_to_d1", "mit_office_2_d0_to_d2"]
+    assert len(p["clips"]) == 6 and p["pairs"]["mit_office_2_d0_to_d2"]["target"] == "mit_office_2_d2"
+    # one image is a one-frame clip
+    c = {**{"video": p["clips"]["mit_kitchen_a_d1"]["image"]}, "split": "mit", "chunk": 0, "start_frame": 0,
+         "frame_step": 1, "num_frames": 1}
+    m = ingest_clip(c, "mit_kitchen_a_d1", tmp_path / "out", width=W, height=H, num_frames=17)
+    assert m["num_frames"] == 1
+    assert abs(io.linear_to_display(io.read_rgb_exr(tmp_path / "out" / "0000.exr")).mean() * 255 - 90) < 1.5
+    with pytest.raises(io.DataError, match="no dir_7_mip2"):
+        mit.plan({"root": str(root), "target_dirs": [7]})
+    with pytest.raises(io.DataError, match="not found"):
+        mit.scan(tmp_path / "nowhere")

@@ -193,14 +193,14 @@ def minutes(limit: str) -> int:
 def test_outputs_equal_a_local_run(runs):
     slurm_dir, local_dir = runs["slurm_dir"], runs["local_dir"]
     specs = sorted((local_dir / "results/scenes").glob("*/scene.json"))
-    assert len(specs) == 2  # ci.yaml: 2 scenes
+    assert len(specs) == 3  # ci.yaml: 3 scenes (train, test, recon)
     for spec in specs:
         other = slurm_dir / spec.relative_to(local_dir)
         assert other.read_bytes() == spec.read_bytes(), spec.relative_to(local_dir)
     for rel in COMPARED:
         assert (slurm_dir / rel).read_bytes() == (local_dir / rel).read_bytes(), rel
     pairs = (slurm_dir / COMPARED[1]).read_text().splitlines()
-    assert len(pairs) == 6
+    assert len(pairs) == 3  # the train scene's 3 trajectories, one target lighting each
     for p in map(json.loads, pairs):
         assert len(list((slurm_dir / p["proxy"]).glob("*.exr"))) == p["num_frames"]
     # The GPU rule ran too: the refiner trained on those pairs.

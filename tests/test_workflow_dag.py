@@ -114,6 +114,23 @@ def test_ablations_target_trains_and_scores_every_variant(default_config):
     assert counts["benchmark_pairs"] == 2
 
 
+def test_mit_benchmark_plans_its_jobs_from_the_folder(tmp_path):
+    """mit.root set: one-frame clips per scene and direction, Phi on the source images only, one relighting
+    fit per (scene, target direction); none of it without mit.root."""
+    import yaml
+    from test_ingest import _mit_fixture
+
+    root = _mit_fixture(tmp_path / "mit")
+    cfg = tmp_path / "mit.yaml"
+    cfg.write_text(yaml.safe_dump({"mit": {"root": str(root), "target_dirs": [1, 2]}}))
+    res = dry_run("results/benchmarks/mit/pairs.jsonl", configfile=str(cfg))
+    assert res.returncode == 0, res.stderr[-2000:]
+    counts = job_counts(res.stdout)
+    assert counts["ingest_video"] == 6 and counts["reconstruct_real"] == 2 and counts["relight_mit"] == 4
+    assert "reconstruct_synthetic" not in counts and counts["benchmark_pairs"] == 1
+    assert "relight_mit" not in job_counts(dry_run("all").stdout)
+
+
 @pytest.mark.parametrize("variant", ["synthetic", "clean", "full_real"])
 def test_unknown_variants_cannot_be_requested(variant):
     res = dry_run(f"results/eval/{variant}/synthetic/metrics.json")

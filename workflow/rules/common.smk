@@ -11,6 +11,7 @@ from lightcrafter import datasets as ds
 from lightcrafter.config import check_config
 from lightcrafter.ingest import real_clips
 from lightcrafter.layout import Layout
+from lightcrafter.mit_multi_illum import plan as mit_plan
 from lightcrafter.scenes import ConfigError, plan_scene, scene_ids
 
 try:
@@ -25,6 +26,20 @@ SCENE_IDS = scene_ids(config["scenes"])
 _PLANS = {sid: plan_scene(config["scenes"], SEED, i) for i, sid in enumerate(SCENE_IDS)}
 # Real clips: ids fixed by config (video, chunk index), so the DAG is known before any video is read.
 REAL = real_clips(config.get("real", {}))
+# MIT Multi-Illumination benchmark (config mit.root; empty by default): one-frame clips and pairs.
+MIT = mit_plan(config.get("mit"))
+for _cid, _c in MIT["clips"].items():
+    REAL[_cid] = {
+        "video": _c["image"],
+        "split": "mit",
+        "chunk": 0,
+        "start_frame": 0,
+        "frame_step": 1,
+        "num_frames": 1,
+        "fov_x_deg": float(config["mit"].get("fov_x_deg", 60.0)),
+        "scene_static": True,
+        "camera_static": True,
+    }
 # Dataset variants trained by the default target (each one of lightcrafter.datasets.VARIANTS).
 DATASET_VARIANTS = list(config["datasets"]["variants"])
 BENCHMARKS = [
@@ -39,6 +54,7 @@ wildcard_constraints:
     traj=r"t\d+",
     light=r"L\d+",
     clip=r"[A-Za-z0-9][A-Za-z0-9_]*",
+    pair=r"mit_[A-Za-z0-9_]+_to_d\d+",
     kind="light|material|object",
     variant="|".join(ds.VARIANTS),
     bench="|".join(ds.BENCHMARKS),
@@ -218,8 +234,22 @@ def variant_inputs(wildcards):
 
 
 def benchmark_inputs(wildcards):
-    specs = ds.benchmark_specs(wildcards.bench, L, refiner_scene_plans(), REAL)
+    specs = ds.benchmark_specs(
+        wildcards.bench, L, refiner_scene_plans(), REAL, MIT["pairs"]
+    )
     return ds.spec_inputs(specs)
+
+
+def mit_json(wildcards):
+    return as_json(MIT["pairs"])
+
+
+def real_num_frames(wildcards):
+    return REAL[wildcards.clip].get("num_frames", config["scenes"]["num_frames"])
+
+
+def mit_pair(wildcards):
+    return MIT["pairs"][wildcards.pair]
 
 
 def refiner_model_config():

@@ -46,6 +46,7 @@ rule benchmark_pairs:
         script=script_path("build_dataset.py"),
         plans=plans_json,
         real=real_json,
+        mit=mit_json,
     shell:
         "python {params.script} --benchmark {wildcards.bench} --plans-json {params.plans:q} "
-        "--real-json {params.real:q} --output {output.pairs} > {log} 2>&1"
+        "--real-json {params.real:q} --mit-json {params.mit:q} --output {output.pairs} > {log} 2>&1"

@@ -1,3 +1,5 @@
+# MIT Multi-Illumination (relight_mit): the source image's scene state rendered under the map fitted to the
+# captured target image (lightcrafter.mit_multi_illum).
 # Real videos -> real pseudo-pairs: ingest a clip (linear frames at the training size), run the same
 # Phi as the synthetic branch, fit the source environment map (lightcrafter.envfit), which also renders
 # the pseudo-input R(S, L_hat) of every frame: the pair's proxy.
@@ -22,7 +24,7 @@ rule ingest_video:
         out_dir=manifest_stem,
         width=config["scenes"]["width"],
         height=config["scenes"]["height"],
-        frames=config["scenes"]["num_frames"],
+        frames=real_num_frames,
         short=config["real"].get("short_clips", "skip"),
     shell:
         "python {params.script} --clip-json {params.clip:q} --clip-id {wildcards.clip} --out {params.out_dir} "
@@ -72,6 +74,40 @@ rule fit_envmap:
         "logs/envfit/{clip}.log",
     benchmark:
         "logs/benchmark/envfit/{clip}.tsv"
+    conda:
+        "../../envs/mitsuba.yaml"
+    threads: 2
+    resources:
+        mem_mb=4000,
+        runtime=30,
+    params:
+        script=script_path("fit_envmap.py"),
+        clip_dir=clip_dir_of_input,
+        out_dir=parent_dir,
+        frames=manifest_stem_of_input,
+        settings=as_json(config.get("envfit", {})),
+        spp=config["proxy"]["spp"],
+    shell:
+        "python {params.script} --clip {params.clip_dir} --frames {params.frames} --out {params.out_dir} "
+        "--saturation-level 1.0 --spp {params.spp} --settings-json {params.settings:q} "
+        "--threads {threads} > {log} 2>&1"
+
+
+# A MIT pair id (mit_<scene>_d<i>_to_d<j>) also matches {clip}: its fit comes from relight_mit.
+ruleorder: relight_mit > fit_envmap
+
+
+rule relight_mit:
+    input:
+        clip=lambda wc: L.recon_clip_manifest("real", mit_pair(wc)["source"]),
+        video=lambda wc: L.real_frames(mit_pair(wc)["target"]) + ".json",
+    output:
+        fit=L.envfit_manifest("{pair}"),
+        pseudo=L.pseudo_input("{pair}") + ".json",
+    log:
+        "logs/envfit/{pair}.log",
+    benchmark:
+        "logs/benchmark/envfit/{pair}.tsv"
     conda:
         "../../envs/mitsuba.yaml"
     threads: 2

@@ -1,0 +1,108 @@
+"""Kill the tiny workflow (config/ci.yaml) inside its long stages, rerun, and compare with an uninterrupted run.
+
+Kill points (SIGKILL to Snakemake's whole process group, as a node failure would): inside a Cycles
+render, inside the forward renderer R, inside the reconstruction stack Phi, inside envmap fitting and
+inside refiner training. Each is detected from the files the stage leaves while it runs (a first frame
+without its manifest, Phi's log without its clip, a fit checkpoint or log without its manifest, a
+training checkpoint without the model). After every kill the same command is rerun; at the end the
+products are compared with the uninterrupted run of tests/test_pipeline_e2e.py: byte-identical scene
+specs, asset manifest, ground-truth and reconstructed clip manifests and pair manifests, and frames
+equal to the last bit (Cycles, R) or within float tolerance.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from workflow_util import REPO, venv_env
+
+pytestmark = pytest.mark.slow
+CI_CONFIG = str(REPO / "config" / "ci.yaml")
+
+
+def _running(wd: Path, point: str) -> bool:
+    r = wd / "results"
+    if point == "cycles":
+        return any(not (f.parent.parent / f"{f.parent.name}.json").exists() for f in r.glob("gt/*/*/rgb/*/0000.exr"))
+    if point == "proxy":
+        return any(not (f.parent.parent / f"{f.parent.name}.json").exists() for f in r.glob("proxy*/*/*/*/0000.exr"))
+    if point == "phi":
+        return any(not (r / "recon" / "synthetic" / log.stem.removeprefix("synthetic_") / "buffers.json").exists()
+                   for log in (wd / "logs" / "recon").glob("synthetic_*.log"))
+    if point == "envfit":
+        return any(not (log.parent.parent.parent / "results" / "envfit" / log.stem / "fit.json").exists()
+                   for log in (wd / "logs" / "envfit").glob("*.log"))
+    if point == "training":
+        return any((d / "checkpoints" / "latest.txt").exists() and not (d / "model.pt").exists()
+                   for d in r.glob("refiner/*"))
+    raise ValueError(point)
+
+
+def _run_until(wd: Path, point: str | None, timeout_s: float = 2400) -> tuple[str, float]:
+    """Run the default target; SIGKILL the process group as soon as ``point`` is running. Returns
+    ('killed' | 'finished' | 'failed: ...', seconds)."""
+    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "-d", str(wd), "--configfile", CI_CONFIG]
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, cwd=REPO, env=venv_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         start_new_session=True)
+    while p.poll() is None:
+        if point and _running(wd, point):
+            time.sleep(0.5)  # let it write a little more
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+            return "killed", time.perf_counter() - t0
+        if time.perf_counter() - t0 > timeout_s:
+            os.killpg(p.pid, signal.SIGKILL)
+            return "failed: timeout", time.perf_counter() - t0
+        time.sleep(0.2)
+    err = p.stderr.read().decode()[-3000:]
+    return ("finished" if p.returncode == 0 else f"failed: exit {p.returncode}: {err}"), time.perf_counter() - t0
+
+
+DETERMINISTIC = ["scenes/*/scene.json", "assets/manifest.json", "gt/*/*/buffers.json", "recon/*/*/buffers.json",
+                 "aligned/*/*/buffers.json", "datasets/*/pairs.jsonl", "benchmarks/*/pairs.jsonl",
+                 "real/*/rgb.json"]
+
+
+def test_killed_runs_resume_to_the_uninterrupted_result(e2e_run, tmp_path_factory):
+    wd = tmp_path_factory.mktemp("killed")
+    outcomes = {}
+    for point in ("cycles", "proxy", "phi", "envfit", "training", None):
+        status, sec = _run_until(wd, point)
+        outcomes[point or "final"] = (status, round(sec, 1))
+        print(f"kill point {point}: {status} after {sec:.1f} s", flush=True)
+        assert not status.startswith("failed"), status
+    assert outcomes["final"][0] == "finished"
+    hit = [p for p, (s, _) in outcomes.items() if s == "killed"]
+    assert len(hit) >= 4, f"only {hit} kill points were hit: {outcomes}"
+    # training resumed from its checkpoint rather than restarting
+    if "training" in hit:
+        logs = "".join(f.read_text() for f in (wd / "results" / "refiner").glob("*/train.log"))
+        assert "resumed from" in logs
+    ref = e2e_run / "results"
+    got = wd / "results"
+    compared = 0
+    for pattern in DETERMINISTIC:
+        for f in sorted(ref.glob(pattern)):
+            g = got / f.relative_to(ref)
+            assert g.is_file(), f"{g} missing after the killed runs"
+            assert g.read_bytes() == f.read_bytes(), f"{f.relative_to(ref)} differs from the uninterrupted run"
+            compared += 1
+    assert compared > 20
+    from lightcrafter.io import read_rgb_exr
+
+    frames = 0
+    for f in sorted(ref.glob("gt/*/*/rgb/*/*.exr")) + sorted(ref.glob("proxy/*/*/*/*.exr")):
+        np.testing.assert_array_equal(read_rgb_exr(got / f.relative_to(ref)), read_rgb_exr(f))
+        frames += 1
+    assert frames > 50
+    # nothing half-written is left where a rule would trust it
+    assert not list(got.rglob(".*.tmp*"))
