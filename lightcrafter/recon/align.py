@@ -10,8 +10,10 @@ every local error (holes, blur, wrong materials, per-frame depth errors, camera 
     short, nearly straight camera paths of these clips the camera centres alone constrain rotation
     poorly (Umeyama on centres of a 16-degree arc was off by 5-15 degrees where this is off by the
     cameras' own error), so the orientations fix R;
-  - s, t: least squares of s R c_est_i + t = c_gt_i over camera centres c (Umeyama's scale and
-    translation given R); a static camera (all centres equal) takes s from the depth maps instead;
+  - s: the ratio of the RMS spreads of the camera centres about their means (exact for a similarity,
+    and positive however wrong R is, where the least-squares scale given R can turn negative on a
+    poorly reconstructed path); t = mean(c_gt) - s R mean(c_est); a static camera (all centres equal)
+    takes s from the depth maps instead;
 * a depth-scale correction k (1 number): the median over surface pixels of d_gt / (s d_est), applied
   to every depth map, so depth and camera units agree.
 
@@ -61,7 +63,7 @@ def estimate(c2w_est: np.ndarray, c2w_gt: np.ndarray, depth_est: list[np.ndarray
     spread = float((ce_c ** 2).sum())
     ratio = _depth_ratio(depth_est, depth_gt)
     if spread > 1e-12 * max(1.0, float((ce ** 2).sum())):
-        s = float(np.sum(cg_c * (ce_c @ R.T)) / spread)
+        s = float(np.sqrt((cg_c ** 2).sum() / spread))  # RMS spread ratio: positive whatever the error of R
     else:  # static camera: the depth maps carry the scale
         if ratio is None:
             raise io.DataError(f"{where}: static camera and no depth to scale the reconstruction; cannot align")
