@@ -14,10 +14,12 @@ Conventions
   convention (top-left pixel centre at (0.5, 0.5)) is converted here; nothing outside this module
   sees it.
 
-Static camera: when the median motion of SIFT matches between every two consecutive frames stays
-under ``static_motion_px`` pixels, the camera is taken as static and structure from motion is
+Static camera: when the typical motion of SIFT matches between consecutive frames (median over pairs
+of the per-pair median) stays under ``static_motion_px`` pixels, the camera is taken as static and structure from motion is
 not run (it cannot: a pure rotation or a static camera gives no two-view geometry). All frames
-then get the identity pose.
+then get the identity pose. When SfM fails on a clip whose motion is under twice that threshold, the
+camera is taken as static too (little image motion and no two-view geometry); the clip's ``method``
+records ``static (fallback)``.
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ class SfMSettings:
     exhaustive_max_frames: int = 60
     sequential_overlap: int = 10
     min_registered_fraction: float = 0.6
-    static_motion_px: float = 0.5
+    static_motion_px: float = 0.8
     threads: int = 1
 
 
@@ -80,8 +82,9 @@ def prior_intrinsics(width: int, height: int, fov_x_rad: float) -> np.ndarray:
 
 
 def median_motion_px(frames: np.ndarray, ratio: float = 0.75) -> float:
-    """Largest, over consecutive frame pairs, of the median displacement (px) of their SIFT matches
-    (OpenCV SIFT, Lowe's ratio test). SIFT matching, unlike brightness-constancy tracking, holds
+    """Median, over consecutive frame pairs, of the median displacement (px) of their SIFT matches
+    (OpenCV SIFT, Lowe's ratio test): the typical image motion per frame, robust to the few pairs in
+    which moving shadows dominate the matches. SIFT matching, unlike brightness-constancy tracking, holds
     under the strong lighting changes of a rotating environment, where moving shadows are a minority
     of the matches. Returns 0.0 for a one-frame clip; inf when fewer than 8 matches are found."""
     import cv2
@@ -91,7 +94,7 @@ def median_motion_px(frames: np.ndarray, ratio: float = 0.75) -> float:
     sift = cv2.SIFT_create(nfeatures=2000)
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     feats = [sift.detectAndCompute(cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY), None) for f in frames]
-    worst = 0.0
+    per_pair = []
     for (k0, d0), (k1, d1) in zip(feats[:-1], feats[1:]):  # consecutive frames: the smallest lighting change
         if d0 is None or d1 is None or len(k0) < 8 or len(k1) < 2:
             return float("inf")
@@ -101,8 +104,8 @@ def median_motion_px(frames: np.ndarray, ratio: float = 0.75) -> float:
             return float("inf")
         p0, p1 = np.array([k.pt for k in k0]), np.array([k.pt for k in k1])
         disp = np.linalg.norm(p1[[m.trainIdx for m in good]] - p0[[m.queryIdx for m in good]], axis=1)
-        worst = max(worst, float(np.median(disp)))
-    return worst
+        per_pair.append(float(np.median(disp)))
+    return float(np.median(per_pair))
 
 
 def static_track(n: int, K: np.ndarray) -> CameraTrack:
@@ -136,6 +139,11 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
     tmp = Path(tempfile.mkdtemp(prefix="lc_sfm_", dir=work_dir))
     try:
         track = _colmap(frames, K, settings, name, tmp)
+    except ReconstructionError:
+        if motion > 2 * settings.static_motion_px:
+            raise
+        track = static_track(n, K)
+        track.info = {"method": "static (fallback)", "registered": n, "frames": n}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     track.info.update({"median_motion_px": motion, "seconds": round(time.perf_counter() - t0, 3)})
