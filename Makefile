@@ -13,7 +13,7 @@ run: setup
 	$(SNAKEMAKE)
 
 test: setup
-	$(PYTEST) -q
+	$(PYTEST) -q --junitxml=results/tests/junit.xml
 
 test-fast: setup
 	$(PYTEST) -q -m "not slow"
