@@ -42,11 +42,11 @@ for _cid, _c in MIT["clips"].items():
     }
 # Dataset variants trained by the default target (each one of lightcrafter.datasets.VARIANTS).
 DATASET_VARIANTS = list(config["datasets"]["variants"])
-BENCHMARKS = [
-    b
-    for b in ds.BENCHMARKS
-    if b != "real" or any(c["split"] == "test" for c in REAL.values())
-]
+BENCHMARKS = (
+    ["synthetic"]
+    + (["real"] if any(c["split"] == "test" for c in REAL.values()) else [])
+    + (["mit"] if MIT["pairs"] else [])
+)
 
 
 wildcard_constraints:
