@@ -40,7 +40,7 @@ from lightcrafter.proxy.camera import sensor_from_opencv
 from lightcrafter.proxy.geometry import bilateral_depth, pixel_grid_mesh, pixel_quad_mesh, valid_depth
 from lightcrafter.proxy.lighting import Lighting
 from lightcrafter.proxy.mitsuba_setup import ensure_variant
-from lightcrafter.proxy.visibility import VisibilitySettings, clean_and_decimate, merge_meshes
+from lightcrafter.proxy.visibility import VisibilitySettings, clean_and_decimate, merge_meshes, spread_subset
 
 
 @dataclass(frozen=True)
@@ -249,7 +249,7 @@ class ProxyRenderer:
         for v in views:
             distinct.setdefault(v.cache_key(), v)
         meshes = []
-        for v in distinct.values():
+        for v in spread_subset(list(distinct.values()), s.visibility_mesh.max_views):
             depth, valid = self._depth(v.buffers)
             meshes.append(pixel_grid_mesh(depth, valid, v.K, v.c2w, v.buffers.normal,
                                           s.visibility_mesh.rel_threshold, s.visibility_mesh.border_px))
