@@ -80,7 +80,7 @@ def proxy_frames(results: Path, scene: str, traj: str, light: str, gt: Path, spp
     spec = io.read_json(results / "scenes" / scene / "scene.json")
     views, info = read_clip(gt)
     lighting = lighting_from_spec(spec, light, traj)
-    settings = resolve_visibility(RenderSettings(spp=spp, visibility=visibility), info.scene_static)
+    settings = resolve_visibility(RenderSettings(spp=spp, visibility=visibility), info.scene_static, info.consistent_depth)
     t0 = time.perf_counter()
     frames, renderer, _ = render_views(views, lighting, settings, work / f"{scene}_{traj}_{light}")
     return frames, (time.perf_counter() - t0) / len(frames), "this benchmark"

@@ -23,7 +23,10 @@ Manifest (``format: lightcrafter.clip/1``)::
     cameras                  "cameras.json"
     confidence               per-frame relative paths, or null when the producer has none
     camera_static            the camera does not move
-    scene_static             no object moves (so a shadow mesh merged over all frames is valid)
+    scene_static             no object moves
+    consistent_depth         the depth maps of different frames agree (ground truth): only then is a
+                             shadow mesh merged over frames valid; a reconstruction's frames disagree
+                             by more than R's shadow offset, and merged layers shadow each other
     units                    "metres" (Blender, aligned estimates) or "arbitrary" (a reconstruction's
                              own scale, e.g. structure from motion: one unknown scale per clip)
     producer                 what wrote it and with which settings ({"stage": "blender" | "phi" | ...})
@@ -129,6 +132,7 @@ class ClipInfo:
     frames: list[str]
     camera_static: bool
     scene_static: bool
+    consistent_depth: bool
     units: str
     producer: dict
     content_id: str | None
@@ -171,7 +175,8 @@ def read_confidence(path: str | os.PathLike) -> np.ndarray:
 
 def write_clip(clip_dir: str | os.PathLike, *, serve: list[int], K: np.ndarray, c2w: np.ndarray, width: int,
                height: int, fps: float, camera_static: bool, scene_static: bool, units: str, producer: dict,
-               content_id: str | None, confidence: bool = False, extra: dict | None = None) -> dict:
+               content_id: str | None, confidence: bool = False, extra: dict | None = None,
+               consistent_depth: bool = False) -> dict:
     """Write ``cameras.json`` and then the manifest ``buffers.json`` of a clip whose buffer files exist.
 
     ``serve[i]`` is the distinct frame whose buffers (``buffers/{serve[i]:04d}.exr``) serve frame i.
@@ -197,7 +202,7 @@ def write_clip(clip_dir: str | os.PathLike, *, serve: list[int], K: np.ndarray, 
         "cameras": CAMERAS,
         "confidence": [f"confidence/{j:04d}.exr" for j in serve] if confidence else None,
         "camera_static": bool(camera_static), "scene_static": bool(scene_static),
-        "units": units, "producer": producer, "content_id": content_id,
+        "consistent_depth": bool(consistent_depth), "units": units, "producer": producer, "content_id": content_id,
         **(extra or {}),
     }
     io.write_json(clip_dir / MANIFEST, manifest)
@@ -229,7 +234,7 @@ def read_info(clip: str | os.PathLike) -> ClipInfo:
         root=mpath.parent, width=int(man["width"]), height=int(man["height"]), num_frames=len(frames),
         fps=float(man.get("fps", 24.0)), frames=frames,
         camera_static=bool(man.get("camera_static", False)), scene_static=bool(man.get("scene_static", True)),
-        units=units, producer=dict(man.get("producer") or {}), content_id=man.get("content_id"),
+        consistent_depth=bool(man.get("consistent_depth", False)), units=units, producer=dict(man.get("producer") or {}), content_id=man.get("content_id"),
         confidence=conf if isinstance(conf, list) else None, manifest=man,
     )
 

@@ -23,7 +23,7 @@ def make_clip(root: Path, env: np.ndarray | None = None) -> tuple[Path, Path]:
     for i, c in enumerate(c2ws):
         write_buffers(gt / "buffers" / f"{i:04d}.exr", syn.raycast_buffers(K, c, W, H, [syn.Sphere((0, 0, 0.5), 0.5)]))
     write_clip(gt, serve=list(range(N)), K=[K] * N, c2w=c2ws, width=W, height=H, fps=24, camera_static=False,
-               scene_static=True, units="metres", producer={"stage": "test"}, content_id="t0",
+               scene_static=True, units="metres", producer={"stage": "test"}, content_id="t0", consistent_depth=True,
                extra={"trajectory": "t0"})
     env_path = root / "env.exr"
     write_rgb_exr(env_path, np.full((8, 16, 3), 0.5, np.float32) if env is None else env)

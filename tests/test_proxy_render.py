@@ -186,6 +186,8 @@ def test_auto_visibility_aggregates_only_static_scenes():
     assert resolve_visibility(s, scene_static=True).visibility == "aggregate"
     assert resolve_visibility(s, scene_static=False).visibility == "frame"
     assert resolve_visibility(RenderSettings(visibility="none"), scene_static=False).visibility == "none"
+    # a reconstruction's depth maps disagree between frames: never merged into one shadow mesh
+    assert resolve_visibility(s, scene_static=True, consistent_depth=False).visibility == "frame"
 
 
 def test_stratified_sampler_beats_independent_at_equal_spp():

@@ -137,7 +137,7 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
     clip.write_clip(
         out_dir, serve=serve, K=K, c2w=c2w, width=spec["resolution"]["width"], height=spec["resolution"]["height"],
         fps=float(spec.get("fps", 24)), camera_static=bool(traj.get("camera_static", False)),
-        scene_static=bool(traj.get("scene_static", True)), units="metres",
+        scene_static=bool(traj.get("scene_static", True)), units="metres", consistent_depth=True,
         producer={"stage": "blender", "engine": "cycles", "spp": BUFFER_SPP,
                   "pixel_filter": f"box {BUFFER_FILTER_WIDTH_PX} px"},
         content_id=io.fingerprint(inputs),

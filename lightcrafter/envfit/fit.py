@@ -200,7 +200,7 @@ def prepare(clip: str | Path, frames_dir: str | Path, settings: FitSettings,
         raise ValueError(f"data_reduction={settings.data_reduction!r}: use 'sum' or 'mean'")
     views, info = read_clip(clip)
     frames = videomod.read_frames(frames_dir, info)
-    render = resolve_visibility(render, info.scene_static)
+    render = resolve_visibility(render, info.scene_static, info.consistent_depth)
     vid = videomod.select(frames, views, info, frames_dir, settings.frame_stride, settings.saturation_level,
                           settings.use_background and render.show_background)
     if cache_frames is None:

@@ -66,7 +66,8 @@ def write_synthetic_clip(root: str | Path, n: int = 5, width: int = 32, height: 
         io.write_buffers(root / "buffers" / f"{j:04d}.exr",
                          syn.raycast_buffers(K, c2ws[j], width, height, list(spheres), ground))
     write_clip(root, serve=serve, K=[K] * n, c2w=c2ws, width=width, height=height, fps=24, camera_static=static,
-               scene_static=True, units="metres", producer={"stage": "synthetic-envfit"}, content_id=f"syn{n}x{width}")
+               scene_static=True, units="metres", producer={"stage": "synthetic-envfit"}, content_id=f"syn{n}x{width}",
+               consistent_depth=True)
     return root
 
 
@@ -76,7 +77,8 @@ def render_video(clip: str | Path, env: np.ndarray, frames_dir: str | Path, spp:
     from lightcrafter.clip import read_clip
 
     views, info = read_clip(clip)
-    s = resolve_visibility(RenderSettings(**{**settings.__dict__, "spp": spp, "seed": seed}), info.scene_static)
+    s = resolve_visibility(RenderSettings(**{**settings.__dict__, "spp": spp, "seed": seed}), info.scene_static,
+                           info.consistent_depth)
     r = ProxyRenderer(Lighting(env=np.asarray(env, np.float32)), s)
     r.prepare(views)
     frames = np.stack([r.render(v, frame=i) for i, v in enumerate(views)])

@@ -31,12 +31,14 @@ from lightcrafter.proxy.renderer import ProxyRenderer, RenderSettings
 __all__ = ["read_clip", "render_clip", "render_views", "resolve_visibility"]
 
 
-def resolve_visibility(settings: RenderSettings, scene_static: bool) -> RenderSettings:
-    """Visibility 'auto': the clip-aggregated shadow mesh when no object moves, this frame's own mesh
-    otherwise (aggregating depth maps over time would leave ghost occluders where objects used to be)."""
+def resolve_visibility(settings: RenderSettings, scene_static: bool, consistent_depth: bool = True) -> RenderSettings:
+    """Visibility 'auto': the clip-aggregated shadow mesh when no object moves and the frames' depth maps
+    agree (ground truth), this frame's own mesh otherwise: aggregating depth maps over time would leave
+    ghost occluders where objects used to be, and a reconstruction's frames disagree by more than the
+    shadow offset, so their merged layers shadow each other (measured: a near-black proxy)."""
     if settings.visibility != "auto":
         return settings
-    return replace(settings, visibility="aggregate" if scene_static else "frame")
+    return replace(settings, visibility="aggregate" if scene_static and consistent_depth else "frame")
 
 
 def _complete(shape):
@@ -92,7 +94,7 @@ def render_clip(clip: str | Path, lighting: Lighting | str | Path, out_dir: str 
     if n_rot not in (0, len(views)):
         raise io.DataError(f"{lighting_src or 'lighting'}: {n_rot} per-frame rotations but clip "
                            f"{info.root} has {len(views)} frames; rebuild the lighting for this clip")
-    settings = resolve_visibility(settings, info.scene_static)
+    settings = resolve_visibility(settings, info.scene_static, info.consistent_depth)
     # Frames of other inputs (a re-made clip, another lighting or settings) are never reused.
     inputs = {"what": "proxy", "clip": clipmod.identity(info.root), "lighting": lighting_identity(lighting),
               "settings": _settings_dict(settings), "edits": [_edit_identity(e) for e in edits]}
