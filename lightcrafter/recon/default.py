@@ -7,9 +7,10 @@ transform, lightcrafter.io.linear_to_display, as a camera would record them):
    with the intrinsics prior held fixed; SfM world and units;
 2. per-frame buffers from the estimator (:mod:`.estimator`): depth in the training scenes' metres,
    camera-space normals, albedo, roughness, metallic, mask;
-3. depth made consistent with the cameras: a robust per-frame scale s_i = median(z_sfm / d_pred)
-   over the SfM points seen in frame i (frames with fewer than ``min_points`` take their nearest
-   neighbour's), smoothed by a 3-frame median; a static camera keeps the estimator's metres;
+3. depth made consistent with the cameras: per frame, the estimator's inverse depth is fitted to the
+   SfM points seen in that frame, 1/d = a/d_pred + b (``depth_fit: affine``, robust least squares) or
+   1/d = a/d_pred (``scale``, the median ratio); frames with fewer than ``min_points`` take their
+   nearest neighbour's fit, smoothed by a 3-frame median; a static camera keeps the estimator's metres;
 4. world normals: the estimator's (rotated by c2w), or derived from the depth map (config
    ``normals: depth``: cross product of the unprojected points' image-space differences);
 5. a Z-up world: the dominant direction of the predicted surface normals (the ground dominates
@@ -36,7 +37,8 @@ from lightcrafter.recon.cameras import CameraTrack, ReconstructionError, SfMSett
 @dataclass
 class DefaultSettings:
     """fov_x_deg: intrinsics prior (horizontal field of view, degrees); camera: auto (static detection,
-    else SfM) | static (known fixed camera: no SfM); normals: predicted | depth;
+    else SfM) | static (known fixed camera: no SfM); normals: predicted | depth; depth_fit: scale |
+    affine (per-frame fit of the estimator's depth to the SfM points, see :func:`depth_fits`);
     min_points: SfM points a frame needs for its own depth scale; mask_threshold: estimator mask
     probability above which a pixel is a surface; sfm: SfMSettings fields; exposure_ev: display
     exposure applied before estimation."""
@@ -44,6 +46,7 @@ class DefaultSettings:
     fov_x_deg: float = 50.0
     camera: str = "auto"
     normals: str = "predicted"
+    depth_fit: str = "scale"
     min_points: int = 8
     mask_threshold: float = 0.5
     exposure_ev: float = 0.0
@@ -58,6 +61,8 @@ class DefaultSettings:
         s = cls(**d)
         if s.camera not in ("auto", "static"):
             raise ValueError(f"recon camera={s.camera!r}: use 'auto' or 'static'")
+        if s.depth_fit not in ("scale", "affine"):
+            raise ValueError(f"recon.depth_fit={s.depth_fit!r}: use 'scale' or 'affine'")
         if s.normals not in ("predicted", "depth"):
             raise ValueError(f"recon.normals={s.normals!r}: use 'predicted' or 'depth'")
         SfMSettings(**s.sfm)  # validate
@@ -80,8 +85,57 @@ def read_video_frames(frames_dir: str | Path, exposure_ev: float = 0.0) -> tuple
     return d, io.to_uint8(d)
 
 
+def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode: str = "scale") -> np.ndarray:
+    """Per-frame (a, b) taking predicted depth d to the cameras' units: ``scale``: 1/d' = a/d (b = 0, a the
+    median ratio); ``affine``: 1/d' = a/d + b in inverse depth (disparity), a robust least-squares fit to
+    the SfM points (a monocular estimator's depth range is compressed; the shift restores the slope of
+    the ground). Frames with too few points take their nearest neighbour's fit; 3-frame median in time."""
+    n, h, w = depth_pred.shape
+    if track.static:
+        return np.tile([1.0, 0.0], (n, 1))
+    fits = np.full((n, 2), np.nan)
+    for i in range(n):
+        uv, z = point_depths(track, i)
+        if len(z) < min_points:
+            continue
+        col = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
+        row = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
+        dp = depth_pred[i, row, col]
+        ok = (z > 0) & np.isfinite(dp) & (dp > 0)
+        if ok.sum() < min_points:
+            continue
+        x, y = 1.0 / dp[ok], 1.0 / z[ok]
+        a = float(np.median(y / x))
+        b = 0.0
+        if mode == "affine" and ok.sum() >= 2 * min_points and np.ptp(x) > 0:
+            keep = np.ones(len(x), bool)
+            for _ in range(3):  # least squares with residual trimming (robust to mismatched points)
+                A = np.stack([x[keep], np.ones(keep.sum())], 1)
+                a_, b_ = np.linalg.lstsq(A, y[keep], rcond=None)[0]
+                r = np.abs(a_ * x + b_ - y)
+                keep = r <= max(np.percentile(r, 80), 1e-12)
+            if a_ > 0 and np.all(a_ * x.min() + b_ > 0):
+                a, b = float(a_), float(b_)
+        fits[i] = (a, b)
+    have = np.flatnonzero(np.isfinite(fits[:, 0]))
+    if not len(have):
+        raise ReconstructionError("no frame sees enough SfM points to scale its depth")
+    for i in np.flatnonzero(~np.isfinite(fits[:, 0])):
+        fits[i] = fits[have[np.argmin(np.abs(have - i))]]
+    if n >= 3:
+        pad = np.concatenate([fits[:1], fits, fits[-1:]])
+        fits = np.median(np.stack([pad[:-2], pad[1:-1], pad[2:]]), axis=0)
+    return fits
+
+
+def apply_depth_fit(depth: np.ndarray, fit: np.ndarray) -> np.ndarray:
+    """d' = 1 / (a / d + b); pixels whose inverse depth would not be positive become invalid (inf)."""
+    inv = fit[0] / depth + fit[1]
+    return np.where(inv > 0, 1.0 / np.maximum(inv, 1e-12), np.inf)
+
+
 def depth_scales(track: CameraTrack, depth_pred: np.ndarray, min_points: int) -> np.ndarray:
-    """Per-frame factors taking predicted depth to the cameras' units (see module docstring)."""
+    """Per-frame factors taking predicted depth to the cameras' units (``depth_fits`` in scale mode)."""
     n, h, w = depth_pred.shape
     if track.static:
         return np.ones(n)
@@ -161,11 +215,12 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     pred = est.predict(model, disp)
     t_est = time.perf_counter() - t0 - t_cam
     try:
-        scale = depth_scales(track, pred["depth"], settings.min_points)
+        fits = depth_fits(track, pred["depth"], settings.min_points, settings.depth_fit)
     except ReconstructionError as exc:
         raise ReconstructionError(f"{name}: {exc}") from None
     mask = pred["mask"] > settings.mask_threshold
-    depth = pred["depth"] * scale[:, None, None]
+    depth = np.stack([apply_depth_fit(pred["depth"][i], fits[i]) for i in range(n)])
+    scale = fits[:, 0]
     if settings.normals == "depth":
         n_cam = np.stack([normals_from_depth(depth[i], track.K[i]) for i in range(n)])
     else:
@@ -202,7 +257,7 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     for i in todo:
         frames.stamp()
         io.write_buffers(frames.path(i), buffers_of(i))
-    info = {**track.info, "depth_scale_per_frame": np.round(scale, 6).tolist(),
+    info = {**track.info, "depth_fit_per_frame": np.round(fits, 6).tolist(),
             "registered_per_frame": track.registered.tolist()}
     timing = {"cameras_seconds": round(t_cam, 3), "estimator_seconds": round(t_est, 3),
               "seconds": round(time.perf_counter() - t0, 3), "frames": n}

@@ -123,7 +123,7 @@ class GBufferNet(nn.Module):
             "albedo": torch.sigmoid(parts["albedo"]),
             "roughness": torch.sigmoid(parts["roughness"][:, 0]),
             "metallic": torch.sigmoid(parts["metallic"][:, 0] - 2.0),
-            "mask_logit": parts["mask"][:, 0] + 3.0,
+            "mask_logit": parts["mask"][:, 0],
         }
 
 

@@ -154,6 +154,7 @@ def recon_settings():
     return {
         "fov_x_deg": r.get("fov_x_deg") or config["scenes"]["fov_x_deg"],
         "normals": r.get("normals", "predicted"),
+        "depth_fit": r.get("depth_fit", "scale"),
         "sfm": r.get("sfm", {}),
     }
 
