@@ -199,3 +199,36 @@ def test_regression_objective_trains_and_starts_at_the_proxy(tmp_path):
     res = train(cfg, ds, tmp_path, objective="regression", snapshot_steps=[2], progress=False)
     assert res["step"] == 3 and all(torch.isfinite(torch.tensor(res["losses"])))
     assert (tmp_path / "candidates/step_0000002.pt").is_file() and (tmp_path / "model.pt").is_file()
+
+
+def test_dropped_proxy_keeps_the_anchor_in_training():
+    """Proxy dropout zeroes the network's proxy input only; the anchor stays on the proxy, as in CFG's
+    unconditional branch at inference (an untrained model's loss is the same with or without dropout)."""
+    from lightcrafter.refiner.training import training_loss
+
+    torch.manual_seed(0)
+    cfg = resolve_config(SMALL)
+    model = Refiner(cfg)
+    sched = build_scheduler(cfg, "ddim")
+    x0, zp = torch.randn(1, 2, model.latent_channels, 2, 4), torch.randn(1, 2, model.latent_channels, 2, 4)
+    noise, t = torch.randn_like(x0), torch.tensor([300])
+    kept = training_loss(model, sched, x0, zp, t, noise, anchor=zp)
+    dropped = training_loss(model, sched, x0, torch.zeros_like(zp), t, noise, anchor=zp)
+    assert torch.allclose(kept, dropped)
+    assert not torch.allclose(training_loss(model, sched, x0, torch.zeros_like(zp), t, noise), kept)
+
+
+def test_anchor_map_starts_at_identity_trains_and_round_trips(tmp_path):
+    from lightcrafter.refiner import load_model, train
+    from lightcrafter.refiner.toy import ToyDataset
+
+    cfg = resolve_config({**SMALL, "train": {"max_steps": 3, "checkpoint_every": 100, "anchor_lr": 0.05}})
+    assert cfg["model"]["anchor_affine"]
+    fresh = Refiner(cfg)
+    assert torch.equal(fresh.anchor_map(torch.ones(1, 1, fresh.latent_channels, 1, 1)),
+                       torch.ones(1, 1, fresh.latent_channels, 1, 1))
+    train(cfg, ToyDataset(2), tmp_path, progress=False)
+    m = load_model(tmp_path / "model.pt")
+    assert float(m.anchor_map.gain.detach().abs().max()) > 0.01  # moved at its own learning rate
+    st = torch.load(tmp_path / "model.pt", weights_only=False)
+    assert torch.equal(st["anchor_map"]["gain"], m.anchor_map.gain.detach())

@@ -63,7 +63,7 @@ def load_regressor(model_path):
     if not reg:
         return None
     model = Refiner(st["config"])
-    model.transformer.load_state_dict(reg["transformer"])
+    model.load_weights(reg)
     model.ae.load_state_dict(reg["ae"])
     return model.eval()
 

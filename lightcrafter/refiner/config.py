@@ -66,6 +66,7 @@ _BASE: dict = {
         "ae_normalisation": "channel",  # tiny autoencoder: channel (unit variance per channel) | global
         "empty_prompt_cache": None,  # path of the cached empty-prompt embedding (.pt); paper only
         "proxy_anchor": "none",  # none (paper: the network outputs v) | x0 | v: identity at initialisation
+        "anchor_affine": False,  # anchor = learned per-latent-channel affine map of the proxy (identity at init)
     },
     # --- diffusion parameterisation (see COGVIDEOX_5B_SCHEDULER)
     "scheduler": copy.deepcopy(COGVIDEOX_5B_SCHEDULER),
@@ -85,6 +86,7 @@ _BASE: dict = {
         "latent_window": 3,  # latent frames per training crop (paper: 13 = 49 pixel frames)
         "timesteps": "all",  # all (paper: uniform over the 1000 training steps) | sampler_range
         "hflip": False,  # mirror training samples left-right with probability 1/2
+        "anchor_lr": None,  # learning rate of the anchor's affine map (null = train.lr)
         "checkpoint_every": 50,  # optimizer steps
         "log_every": 1,
     },
@@ -121,17 +123,17 @@ _BASE: dict = {
     },
 }
 
-# What a small model trained from scratch on a few clips needs (see docs/architecture.md,
-# "Refiner at small scale"): start from the noised proxy (SDEdit), predict a correction of the
-# proxy (identity at initialisation), train on the timesteps sampling visits, pick checkpoint,
-# strength and guidance on validation scenes, and train the baselines it must beat.
+# What a small model trained from scratch on a few clips needs (lightcrafter/refiner/__init__.py,
+# "Small scale"): start from the noised proxy (SDEdit), predict a correction of the proxy (identity
+# at initialisation), train on the timesteps sampling visits, pick checkpoint, strength and guidance
+# on validation scenes, and train the baselines it must beat.
 TINY_SMALL_SCALE: dict = {
-    "model": {"proxy_anchor": "x0"},
-    "train": {"timesteps": "sampler_range"},
-    "infer": {"strength": 0.3, "guidance_scale": 1.0},
-    "select": {"val_scenes": 0.25, "max_val_pairs": 4, "checkpoints": [], "strengths": [0.1, 0.3, 0.5],
+    "model": {"proxy_anchor": "x0", "anchor_affine": True, "ae_normalisation": "global"},
+    "train": {"lr": 3e-4, "timesteps": "sampler_range", "hflip": True, "anchor_lr": 1e-2},
+    "infer": {"strength": 0.1, "guidance_scale": 1.0},
+    "select": {"val_scenes": 0.25, "max_val_pairs": 4, "checkpoints": [], "strengths": [0.1, 0.3],
                "guidance_scales": [1.0, 2.0]},
-    "baselines": {"regressor_steps": 200, "affine_colour": True},
+    "baselines": {"regressor_steps": 150, "affine_colour": True},
 }
 
 PRESETS: dict[str, dict] = {
@@ -163,6 +165,9 @@ KEY_DOCS: dict[str, str] = {
     "model.transformer": "CogVideoXTransformer3DModel kwargs for kind=tiny (in/out channels are derived)",
     "model.ae_coeffs": "tiny autoencoder: DCT coefficients per 4x8x8 block for [luma, chroma1, chroma2] "
     "(latent channels = sum; [256, 256, 256] = lossless); the paper VAE has 16 latent channels",
+    "model.anchor_affine": "with a proxy anchor: the anchor is a learned per-latent-channel affine map of the proxy "
+    "latent (gain and bias per channel, zero-initialised: still the identity at initialisation), trained with "
+    "the network by the same loss; for the DCT autoencoder a per-frequency linear filter of the proxy",
     "model.ae_normalisation": "tiny autoencoder latent scaling: channel (each channel to unit variance) | global "
     "(one scale, like the CogVideoX VAE's scaling factor: latent L2 = pixel L2 up to a constant)",
     "model.empty_prompt_cache": "file caching the T5 embedding of the empty prompt (paper)",
@@ -183,6 +188,7 @@ KEY_DOCS: dict[str, str] = {
     "train.cond_noise_log_sigma_mean": "mean of log sigma of pixel-space proxy noise (images in [-1, 1])",
     "train.cond_noise_log_sigma_std": "std of log sigma of pixel-space proxy noise",
     "train.latent_window": "latent frames per training crop (cropped from the globally encoded clip)",
+    "train.anchor_lr": "AdamW learning rate of the anchor's affine map (no weight decay); null = train.lr",
     "train.hflip": "augmentation: mirror each training sample (proxy and target) left-right with probability 1/2",
     "train.timesteps": "all (uniform over the scheduler's training steps, paper) | sampler_range: uniform over "
     "[last timestep the sampler visits at infer.num_steps, first timestep at the largest strength in "

@@ -83,8 +83,7 @@ def _candidate_model(cfg: dict, out_dir: Path, step: int, final_step: int, ae_st
     if step == final_step:
         return load_model(out_dir / DIFFUSION_FINAL, apply_selection=False)
     model = Refiner(cfg)
-    model.transformer.load_state_dict(torch.load(snapshot_path(out_dir, step), map_location="cpu",
-                                                 weights_only=False)["transformer"])
+    model.load_weights(torch.load(snapshot_path(out_dir, step), map_location="cpu", weights_only=False))
     model.ae.load_state_dict(ae_state)
     return model.eval()
 
@@ -120,7 +119,8 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     summary: dict = {"carve": carve, "val_pairs": val_ds.pair_ids, "fit_pairs": fit_ds.pair_ids,
                      "train": {"steps": res["step"], "seconds_per_step": res["seconds_per_step"],
                                "seconds_this_run": train_seconds}}
-    chosen_sd = final["transformer"]
+    weight_keys = ("transformer", "anchor_map")
+    chosen_sd = {k: final[k] for k in weight_keys if k in final}
     t0 = time.perf_counter()
     if selecting:
         table = []
@@ -137,8 +137,8 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
         chosen = {"step": best["step"], "strength": best["strength"], "guidance_scale": best["guidance_scale"],
                   "metric": metric, "value": best[metric]}
         if best["step"] != max_steps:
-            chosen_sd = torch.load(snapshot_path(out_dir, best["step"]), map_location="cpu",
-                                   weights_only=False)["transformer"]
+            snap = torch.load(snapshot_path(out_dir, best["step"]), map_location="cpu", weights_only=False)
+            chosen_sd = {k: snap[k] for k in weight_keys if k in snap}
         proxy = score_method(lambda item: item["proxy"], val_ds)
         summary["selection"] = {"chosen": chosen, "table": table, "val_proxy": {k: proxy[k] for k in ("psnr_db", "ssim")},
                                 "num_val_pairs": len(val_ds), "note": carve["note"]}
@@ -156,11 +156,11 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
         rres = train(rcfg, fit_ds, out_dir / REGRESSOR_DIR, objective="regression", final_name="model.pt",
                      progress=progress)
         rst = torch.load(out_dir / REGRESSOR_DIR / "model.pt", map_location="cpu", weights_only=False)
-        baselines["regressor"] = {"transformer": rst["transformer"], "ae": rst["ae"], "steps": rres["step"],
-                                  "seconds_this_run": time.perf_counter() - t0}
+        baselines["regressor"] = {**{k: rst[k] for k in weight_keys if k in rst}, "ae": rst["ae"],
+                                  "steps": rres["step"], "seconds_this_run": time.perf_counter() - t0}
         if selecting:
             reg = Refiner(cfg)
-            reg.transformer.load_state_dict(rst["transformer"])
+            reg.load_weights(rst)
             reg.ae.load_state_dict(rst["ae"])
             sc = score_method(lambda item: regress_video(reg.eval(), item["proxy"][None])[0], val_ds)
             baselines["regressor"]["val"] = {k: sc[k] for k in ("psnr_db", "ssim")}
@@ -174,9 +174,9 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     if summary["selection"]["chosen"]:
         out_cfg["infer"]["strength"] = summary["selection"]["chosen"]["strength"]
         out_cfg["infer"]["guidance_scale"] = summary["selection"]["chosen"]["guidance_scale"]
-    save_checkpoint(out_dir / "model.pt", {"transformer": chosen_sd, "ae": final["ae"], "config": out_cfg,
+    save_checkpoint(out_dir / "model.pt", {**chosen_sd, "ae": final["ae"], "config": out_cfg,
                                            "selection": summary["selection"], "baselines": baselines,
                                            "carve": carve, "train": summary["train"]})
-    summary["baselines"] = {k: {kk: vv for kk, vv in v.items() if kk not in ("transformer", "ae")}
+    summary["baselines"] = {k: {kk: vv for kk, vv in v.items() if kk not in ("transformer", "anchor_map", "ae")}
                             for k, v in baselines.items()}
     return summary

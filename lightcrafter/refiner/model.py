@@ -23,6 +23,12 @@ is the v whose x0 estimate is exactly the proxy latent ``a``. The transformer's 
   |F - (x0 - a)|^2 / (1 - abar_t): the paper's loss and minimiser, reweighted towards small t.
 * ``v``: v = v_anchor + F (F's target (a - x0) / sqrt(1 - abar_t) grows as t -> 0).
 
+With ``model.anchor_affine`` the anchor is a learned per-latent-channel affine map of the proxy,
+``a' = a * (1 + gain) + bias`` (:class:`LatentAffine`, zero-initialised, so still the identity at
+initialisation): a per-frequency linear filter of the proxy (for the DCT autoencoder, one gain per
+kept DCT coefficient and colour channel), shared by every position and timestep, that the
+transformer's bottleneck (inner dim 256 < the 4 * C outputs of a 2x2 patch) cannot represent.
+
 The transformer's output projection is zero-initialised, so an untrained model predicts x0 = proxy at
 every step: sampling returns the proxy latent. The anchor is a fixed skip connection, not a network
 input: CFG's unconditional branch zeroes the network's proxy input but keeps the anchor, so guidance
@@ -89,6 +95,18 @@ def empty_prompt_embedding(cfg: dict, max_len: int, dim: int) -> torch.Tensor:
     return emb[:, :max_len]
 
 
+class LatentAffine(nn.Module):
+    """Per-latent-channel affine map x * (1 + gain) + bias on (B, F, C, h, w); the identity at init."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.gain = nn.Parameter(torch.zeros(channels))
+        self.bias = nn.Parameter(torch.zeros(channels))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * (1 + self.gain.view(1, 1, -1, 1, 1)) + self.bias.view(1, 1, -1, 1, 1)
+
+
 def grid_crop_region(grid_hw: tuple[int, int], base_w: int, base_h: int):
     """Centred region of the base (sample) token grid that a (h, w) token grid is resized into,
     aspect preserved -- the crop CogVideoX 1.0 uses for its 3-D RoPE. Returns ((top, left), (bottom, right))."""
@@ -147,6 +165,8 @@ class Refiner(nn.Module):
 
         ab = build_scheduler(cfg, "ddim").alphas_cumprod.double()
         self.register_buffer("alphas_cumprod", ab.float(), persistent=False)
+        self.anchor_map = (LatentAffine(self.ae.latent_channels)
+                           if self.proxy_anchor != "none" and cfg["model"].get("anchor_affine") else None)
         if self.proxy_anchor != "none":
             out = self.transformer.proj_out  # CogVideoX's last layer (after the adaptive norm)
             with torch.no_grad():
@@ -172,6 +192,26 @@ class Refiner(nn.Module):
         return get_3d_rotary_pos_embed(
             embed_dim=tc.attention_head_dim, crops_coords=crops, grid_size=(gh, gw), temporal_size=frames, device=device
         )
+
+    def trainable_parameters(self) -> list:
+        """Transformer parameters, then the anchor map's (if any)."""
+        extra = list(self.anchor_map.parameters()) if self.anchor_map is not None else []
+        return [p for p in self.transformer.parameters() if p.requires_grad] + extra
+
+    def weights(self, transformer=None) -> dict:
+        """{"transformer": state dict[, "anchor_map": state dict]} (``transformer``: e.g. an unwrapped copy)."""
+        out = {"transformer": (transformer or self.transformer).state_dict()}
+        if self.anchor_map is not None:
+            out["anchor_map"] = self.anchor_map.state_dict()
+        return out
+
+    def load_weights(self, state: dict) -> None:
+        """Load what :meth:`weights` wrote (extra keys of a checkpoint dict are ignored)."""
+        self.transformer.load_state_dict(state["transformer"])
+        if self.anchor_map is not None:
+            if "anchor_map" not in state:
+                raise KeyError("checkpoint has no anchor_map but model.anchor_affine is on; retrain")
+            self.anchor_map.load_state_dict(state["anchor_map"])
 
     def _abar(self, timestep: torch.Tensor) -> torch.Tensor:
         return self.alphas_cumprod.to(timestep.device)[timestep.long()].view(-1, 1, 1, 1, 1)
@@ -204,6 +244,8 @@ class Refiner(nn.Module):
         if self.proxy_anchor == "none":
             return out
         a = proxy if anchor is None else anchor
+        if self.anchor_map is not None:
+            a = self.anchor_map(a)
         ab = self._abar(timestep)
         s1 = (1 - ab).sqrt()
         v_anchor = (ab.sqrt() * noisy - a) / s1

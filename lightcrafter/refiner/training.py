@@ -79,11 +79,18 @@ def latest_checkpoint(out_dir: Path) -> Path | None:
 
 
 def training_loss(model: Refiner, sched, target_lat: torch.Tensor, proxy_lat: torch.Tensor, t: torch.Tensor,
-                  noise: torch.Tensor) -> torch.Tensor:
-    """MSE between the model's v and the scheduler's v target at timesteps t (B,)."""
+                  noise: torch.Tensor, anchor: torch.Tensor | None = None) -> torch.Tensor:
+    """MSE between the model's v and the scheduler's v target at timesteps t (B,).
+
+    ``anchor``: the proxy latent the proxy anchor uses when ``proxy_lat`` is the dropped (zeroed)
+    network input -- as in CFG's unconditional branch at inference. Ignored by un-anchored models.
+    """
     noisy = sched.add_noise(target_lat, noise, t)
     v_target = sched.get_velocity(target_lat, noise, t)
-    v_pred = model(noisy, proxy_lat, t)
+    if anchor is not None and getattr(model, "proxy_anchor", "none") != "none":
+        v_pred = model(noisy, proxy_lat, t, anchor=anchor)
+    else:
+        v_pred = model(noisy, proxy_lat, t)
     return torch.mean((v_pred - v_target) ** 2)
 
 
@@ -170,8 +177,12 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     if cfg["model"]["kind"] == "tiny":
         n_fit = min(len(dataset), 8)
         model.ae.fit_normalisation(dataset[i]["target"][None] for i in range(n_fit))
-    params = [p for p in model.transformer.parameters() if p.requires_grad]
-    opt = torch.optim.AdamW(params, lr=tr["lr"], betas=tuple(tr["adam_betas"]), weight_decay=tr["weight_decay"])
+    params = model.trainable_parameters()
+    groups = [{"params": [p for p in model.transformer.parameters() if p.requires_grad]}]
+    if model.anchor_map is not None:  # its own learning rate, no weight decay (it is an identity offset)
+        groups.append({"params": list(model.anchor_map.parameters()), "weight_decay": 0.0,
+                       "lr": tr["anchor_lr"] if tr["anchor_lr"] is not None else tr["lr"]})
+    opt = torch.optim.AdamW(groups, lr=tr["lr"], betas=tuple(tr["adam_betas"]), weight_decay=tr["weight_decay"])
     warm = max(int(tr["warmup_steps"]), 0)
     lr_sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: min(1.0, (s + 1) / warm) if warm else 1.0)
     gen = torch.Generator().manual_seed(cfg["seed"])
@@ -189,7 +200,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         for old in (out_dir / CANDIDATES).glob("*"):
             old.unlink()
     if st is not None:
-        model.transformer.load_state_dict(st["transformer"])
+        model.load_weights(st)
         model.ae.load_state_dict(st["ae"])
         opt.load_state_dict(st["optimizer"])
         lr_sched.load_state_dict(st["lr_scheduler"])
@@ -216,7 +227,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
 
     def checkpoint():
         state = {
-            "transformer": acc.unwrap_model(model.transformer).state_dict(),
+            **model.weights(acc.unwrap_model(model.transformer)),
             "ae": model.ae.state_dict(),
             "optimizer": opt.state_dict(),
             "lr_scheduler": lr_sched.state_dict(),
@@ -257,13 +268,14 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
                 if objective == "regression":
                     loss = regression_loss(model, tgt[:, s:e].float(), zp)
                 else:
+                    zp_full = zp
                     zp, _ = drop_proxy_latent(zp, tr["proxy_dropout"], gen)
                     if full_range:  # the paper's draw (kept bit-identical to earlier runs)
                         t = torch.randint(sched.config.num_train_timesteps, (1,), generator=gen)
                     else:
                         t = torch.randint(t_lo, t_hi + 1, (1,), generator=gen)
                     noise = torch.randn(zp.shape, generator=gen).to(dev)
-                    loss = training_loss(model, sched, tgt[:, s:e].float(), zp, t.to(dev), noise)
+                    loss = training_loss(model, sched, tgt[:, s:e].float(), zp, t.to(dev), noise, anchor=zp_full)
                 acc.backward(loss)
                 if acc.sync_gradients:
                     acc.clip_grad_norm_(params, tr["max_grad_norm"])
@@ -279,22 +291,23 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         if step % tr["log_every"] == 0:
             log.info("step %d loss %.6f lr %.3g", step, losses[-1], lr_sched.get_last_lr()[0])
         if step in snapshot_steps:
-            save_checkpoint(snapshot_path(out_dir, step), {"transformer": acc.unwrap_model(model.transformer).state_dict(),
+            save_checkpoint(snapshot_path(out_dir, step), {**model.weights(acc.unwrap_model(model.transformer)),
                                                            "step": step, "fingerprint": fingerprint})
         if step % tr["checkpoint_every"] == 0 or step == tr["max_steps"] or done_here == stop_after:
             checkpoint()
     bar.close()
     sec = (time.perf_counter() - t_start) / max(done_here, 1)
     if step >= tr["max_steps"]:
-        save_model(out_dir / final_name, acc.unwrap_model(model.transformer), model.ae, cfg)
+        save_model(out_dir / final_name, model.weights(acc.unwrap_model(model.transformer)), model.ae, cfg)
         with atomic_path(out_dir / "loss_curve.json") as tmp:
             tmp.write_text(json.dumps({"loss_per_optimizer_step": losses, "seconds_per_optimizer_step": sec}))
     log.info("stopped at step %d (%.3f s/optimizer step this run)", step, sec)
     return {"losses": losses, "step": step, "seconds_per_step": sec}
 
 
-def save_model(path: Path, transformer, ae, cfg: dict) -> None:
-    save_checkpoint(path, {"transformer": transformer.state_dict(), "ae": ae.state_dict(), "config": cfg})
+def save_model(path: Path, weights: dict, ae, cfg: dict) -> None:
+    """``weights``: :meth:`Refiner.weights` (transformer and, if any, anchor map state dicts)."""
+    save_checkpoint(path, {**weights, "ae": ae.state_dict(), "config": cfg})
 
 
 SELECTED_INFER_KEYS = ("strength", "guidance_scale")
@@ -318,7 +331,7 @@ def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = 
     if apply_selection and chosen:
         cfg = resolve_config(_merge(cfg, {"infer": {k: chosen[k] for k in SELECTED_INFER_KEYS if k in chosen}}))
     model = Refiner(cfg)
-    model.transformer.load_state_dict(st["transformer"])
+    model.load_weights(st)
     model.ae.load_state_dict(st["ae"])
     model.selection = st.get("selection")
     return model.eval()
