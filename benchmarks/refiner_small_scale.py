@@ -13,7 +13,9 @@ training seeds, then measures on the fit (train), validation and held-out test c
 * the baselines: one-step regressor (same network) and per-channel affine colour fit;
 * gain against data (``--train-scenes``): the same fit with only the first n train-split scenes
   (a nested sequence, validation carved from them as the workflow would), on the same test clips;
-* frame strips (input if the pairs have a source | proxy | refined | regressor | affine | target).
+* frame strips (input if the pairs have a source | proxy | refined | regressor | affine | target);
+* diagnostic ``anchor_only``: the trained refiner with the transformer's output zeroed (what the
+  learned anchor map alone does) against the full refiner, on validation and test clips.
 
 Test clips are only ever scored, never used to choose anything. Writes
 results/bench/NAME.json (+ .png via the report's plot, + NAME/ with strips).
@@ -80,6 +82,7 @@ def main() -> int:
     from lightcrafter.refiner.scoring import bootstrap_mean_ci
     from lightcrafter.refiner.strip import write_strip
     from lightcrafter.refiner.training import _logger
+    from lightcrafter.refiner.validation import pair_group
     from lightcrafter.report import plot_bench
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -122,10 +125,11 @@ def main() -> int:
     proxy_test = score_method(lambda it: it["proxy"], test)
 
     # --- seeds: fit as the workflow does, then curves on fit / val / test clips
-    per_seed, diffs = [], {}
+    per_seed, diffs, sel_by_seed = [], {}, {}
     for seed in a.seeds:
         cfg = {**cfg0, "seed": seed}
         d = work / f"seed{seed}"
+        d.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
         summ = fit_refiner(cfg, pairs, d, progress=False, log=_logger(d))
         fit_s = time.perf_counter() - t0
@@ -152,6 +156,18 @@ def main() -> int:
         aff = load_affine_colour(d / "model.pt")
         if aff is not None:
             base["affine_colour"] = score_method(lambda it: apply_affine_colour(aff, it["proxy"]), test)
+        anchor_only = {}
+        if getattr(model, "anchor_map", None) is not None:  # diagnostic: the learned anchor without the transformer
+            bare = load_model(d / "model.pt")
+            with torch.no_grad():
+                bare.transformer.proj_out.weight.zero_()
+                bare.transformer.proj_out.bias.zero_()
+            for name in ("val", "test"):
+                if len(sets[name]):
+                    anchor_only[name] = mean_scores(score_method(
+                        refine_fn(bare, bare.cfg, chosen["strength"], chosen["guidance_scale"]), sets[name]))
+                    anchor_only[name + "_refined"] = mean_scores(score_method(
+                        refine_fn(model, model.cfg, chosen["strength"], chosen["guidance_scale"]), sets[name]))
         for meth, res in [("refined", sel), *base.items()]:
             for rp, rr in zip(proxy_test["pairs"], res["pairs"]):
                 for k in ("psnr_db", "ssim"):
@@ -162,7 +178,16 @@ def main() -> int:
                          "selection_seconds": round(summ["selection"]["seconds"], 1),
                          "baseline_train": summ["baselines"], "test_refined": mean_scores(sel),
                          "test_baselines": {k: mean_scores(v) for k, v in base.items()}, "curves": curves,
+                         "anchor_only": anchor_only,
                          "selection_table": summ["selection"].get("table")})
+        sel_by_seed[seed] = {
+            "val_scenes": summ["carve"]["val_groups"], "fit_pairs": len(summ["fit_pairs"]),
+            "chosen": summ["selection"]["chosen"], "fit_seconds": round(fit_s, 1), "test_refined": mean_scores(sel),
+            "refined_minus_proxy_psnr_db": bootstrap_mean_ci(
+                [r["psnr_db"] - p["psnr_db"] for r, p in zip(sel["pairs"], proxy_test["pairs"])]),
+            "refined_minus_proxy_ssim": bootstrap_mean_ci(
+                [r["ssim"] - p["ssim"] for r, p in zip(sel["pairs"], proxy_test["pairs"])]),
+            **{f"test_{k}": mean_scores(v) for k, v in base.items()}}
         print(f"seed {seed}: chosen {chosen}; test refined {mean_scores(sel)} vs proxy {mean_scores(proxy_test)}; "
               f"baselines { {k: mean_scores(v) for k, v in base.items()} }", flush=True)
         if seed == a.seeds[0]:  # frame strips of the first seed
@@ -191,8 +216,13 @@ def main() -> int:
 
     # --- gain against data
     data_study = []
+    n_groups = len({pair_group(r) for r in read_pairs(pairs, "train")})
     for n in a.train_scenes:
         for seed in (a.data_seeds or a.seeds):
+            if n == n_groups and seed in sel_by_seed:  # every train-split scene: the seed run above
+                data_study.append({"train_scenes": n, "seed": seed, "same_as": f"seeds[{a.seeds.index(seed)}]",
+                                   **sel_by_seed[seed]})
+                continue
             sub = work / f"data_n{n}_s{seed}"
             sub.mkdir(parents=True, exist_ok=True)
             scenes = _subset_manifest(pairs, sub / "pairs.jsonl", n, seed)
