@@ -1,10 +1,16 @@
 #!/usr/bin/env python
-"""Refine the proxies of one split with a trained refiner (thin entry point).
+"""Refine the proxies of one split with a trained refiner, and run its baselines (thin entry point).
 
   infer_refiner.py --model DIR/model.pt --pairs PAIRS.jsonl --split test --out OUTDIR [--config-json '{"infer": {...}}']
 
-Per pair: OUTDIR/{pair_id}/{frame:04d}.exr (LINEAR RGB, the inverse display transform of the
-refined display frames) and OUTDIR/{pair_id}.mp4 (display preview); OUTDIR/manifest.json last.
+The inference settings are the ones stored with the model: when it was selected on validation, the
+chosen strength and guidance scale apply whatever --config-json says (other infer keys, e.g.
+num_steps, are overridden as given).
+
+Per pair: OUTDIR/{pair_id}/{frame:04d}.exr (LINEAR RGB, the inverse display transform of the refined
+display frames), OUTDIR/{pair_id}.mp4 (display preview), OUTDIR/{pair_id}_strip.png (frame strip:
+input (the record's source video, if it has one) | proxy | refined | target); the baselines stored
+with the model: OUTDIR/baselines/{regressor,affine_colour}/{pair_id}/{frame:04d}.exr; OUTDIR/manifest.json last.
 """
 
 import argparse
@@ -19,18 +25,25 @@ import _cli  # noqa: F401  (puts the repository on sys.path)
 
 from lightcrafter.io import DataError, display_to_linear, to_uint8, write_json, write_rgb_exr, write_video
 from lightcrafter.refiner import MissingWeightsError, PairsDataset, load_model, refine_video
+from lightcrafter.refiner.baselines import apply_affine_colour, load_affine_colour, load_regressor, regress_video
 from lightcrafter.refiner.data import to_display_frames
+from lightcrafter.refiner.strip import write_strip
 
 
-def autoencoder_round_trip_psnr_db(model, target, pad_mode: str) -> float:
-    """Held-out check that the latent space is not the bottleneck: decode(encode(target)) vs target."""
+def autoencoder_round_trip_psnr_db(model, video, pad_mode: str) -> float:
+    """Held-out check that the latent space is not the bottleneck: decode(encode(video)) vs video."""
     from lightcrafter.metrics import video_psnr_db
     from lightcrafter.refiner import pad_to_4k1
 
-    video, n = pad_to_4k1(target[None], pad_mode)
+    padded, n = pad_to_4k1(video[None], pad_mode)
     with torch.no_grad():
-        rt = model.ae.decode(model.ae.encode(video))[0, :, :n].clamp(-1, 1)
-    return video_psnr_db(to_display_frames(rt), to_display_frames(target))
+        rt = model.ae.decode(model.ae.encode(padded))[0, :, :n].clamp(-1, 1)
+    return video_psnr_db(to_display_frames(rt), to_display_frames(video))
+
+
+def write_frames(folder: Path, disp, exposure_ev: float) -> None:
+    for f, frame in enumerate(disp):
+        write_rgb_exr(folder / f"{f:04d}.exr", display_to_linear(frame, exposure_ev))
 
 
 def main() -> int:
@@ -47,27 +60,51 @@ def main() -> int:
     try:
         model = load_model(a.model, json.loads(a.config_json))
         cfg = model.cfg
+        regressor = load_regressor(a.model)
+        affine = load_affine_colour(a.model)
         ds = PairsDataset(a.pairs, a.split, cfg["data"]["exposure_ev"], cache=False)
     except (DataError, MissingWeightsError, KeyError, ValueError) as exc:
         print(f"infer_refiner: {exc}", file=sys.stderr)
         return 1
     out = Path(a.out)
+    ev, pad = cfg["data"]["exposure_ev"], cfg["infer"]["pad_frames"]
     entries = []
     for i in range(len(ds)):
         item = ds[i]
+        pid = item["pair_id"]
         gen = torch.Generator().manual_seed(cfg["seed"])
         t0 = time.perf_counter()
         refined = refine_video(model, item["proxy"][None], cfg, generator=gen)[0]  # (3, N, H, W) in [-1, 1]
         sec = time.perf_counter() - t0
-        ae_psnr = autoencoder_round_trip_psnr_db(model, item["target"], cfg["infer"]["pad_frames"])
         disp = to_display_frames(refined)  # (N, H, W, 3) display
-        for f, frame in enumerate(disp):
-            write_rgb_exr(out / item["pair_id"] / f"{f:04d}.exr", display_to_linear(frame, cfg["data"]["exposure_ev"]))
-        write_video(out / f"{item['pair_id']}.mp4", to_uint8(disp))
-        entries.append({"pair_id": item["pair_id"], "frames": f"{out / item['pair_id']}", "num_frames": len(disp),
-                        "seconds": round(sec, 3), "ae_round_trip_psnr_db": ae_psnr})
-        print(f"infer_refiner: {item['pair_id']}: {len(disp)} frames in {sec:.1f} s", flush=True)
-    write_json(out / "manifest.json", {"model": a.model, "split": a.split, "infer": cfg["infer"], "pairs": entries})
+        write_frames(out / pid, disp, ev)
+        write_video(out / f"{pid}.mp4", to_uint8(disp))
+        entry = {"pair_id": pid, "frames": f"{out / pid}", "num_frames": len(disp), "seconds": round(sec, 3),
+                 "ae_round_trip_psnr_db": autoencoder_round_trip_psnr_db(model, item["target"], pad),
+                 "ae_round_trip_proxy_psnr_db": autoencoder_round_trip_psnr_db(model, item["proxy"], pad),
+                 "baselines": {}}
+        outputs = {}
+        if regressor is not None:
+            t0 = time.perf_counter()
+            outputs["regressor"] = regress_video(regressor, item["proxy"][None], pad)[0]
+            entry["baselines"]["regressor"] = {"seconds": round(time.perf_counter() - t0, 3)}
+        if affine is not None:
+            t0 = time.perf_counter()
+            outputs["affine_colour"] = apply_affine_colour(affine, item["proxy"])
+            entry["baselines"]["affine_colour"] = {"seconds": round(time.perf_counter() - t0, 3)}
+        for name, video in outputs.items():
+            folder = out / "baselines" / name / pid
+            write_frames(folder, to_display_frames(video), ev)
+            entry["baselines"][name].update({"frames": f"{folder}", "num_frames": len(disp)})
+        source = ds.source_frames(i)
+        columns = ([("input", to_display_frames(source))] if source is not None else []) + [
+            ("proxy", to_display_frames(item["proxy"])), ("refined", disp), ("target", to_display_frames(item["target"]))]
+        entry["strip"] = str(write_strip(out / f"{pid}_strip.png", columns))
+        entry["strip_columns"] = [c[0] for c in columns]
+        entries.append(entry)
+        print(f"infer_refiner: {pid}: {len(disp)} frames in {sec:.1f} s", flush=True)
+    write_json(out / "manifest.json", {"model": a.model, "split": a.split, "infer": cfg["infer"],
+                                       "selection": (model.selection or {}).get("chosen"), "pairs": entries})
     return 0
 
 

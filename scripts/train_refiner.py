@@ -1,22 +1,28 @@
 #!/usr/bin/env python
-"""Train the refiner on the train split of a pairs manifest (thin entry point).
+"""Train the refiner on the train split of a pairs manifest (thin entry point over
+lightcrafter.refiner.fit.fit_refiner: validation carve-out, training, selection, baselines).
 
   train_refiner.py --pairs results/datasets/clean_buffers/pairs.jsonl --config-json '{"preset": "tiny"}' --out DIR
 
-Writes DIR/model.pt (final weights + config), DIR/checkpoints/ (resumable), DIR/train.log,
-DIR/loss_curve.json. Rerunning after a kill resumes from the last checkpoint.
+Writes DIR/model.pt last (chosen weights, config with the inference settings chosen on validation,
+selection table, baselines), DIR/selection.json (the same summary, readable), DIR/checkpoints/
+(resumable), DIR/candidates/, DIR/regressor/, DIR/train.log, DIR/loss_curve.json. Rerunning after a
+kill resumes from the last checkpoint.
 """
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import torch
 
 import _cli  # noqa: F401  (puts the repository on sys.path)
 
-from lightcrafter.io import DataError
-from lightcrafter.refiner import MissingWeightsError, PairsDataset, resolve_config, train
+from lightcrafter.io import DataError, write_json
+from lightcrafter.refiner import MissingWeightsError, resolve_config
+from lightcrafter.refiner.fit import fit_refiner
+from lightcrafter.refiner.training import _logger
 
 
 def main() -> int:
@@ -30,16 +36,15 @@ def main() -> int:
         torch.set_num_threads(a.threads)
     try:
         cfg = resolve_config(json.loads(a.config_json))
-        ds = PairsDataset(a.pairs, "train", cfg["data"]["exposure_ev"], limit=cfg["data"]["max_train_pairs"],
-                          cache=cfg["data"]["cache_pixels"])
-        if len(ds) == 0:
-            raise DataError(f"{a.pairs}: no pairs with split == 'train'")
-        res = train(cfg, ds, a.out)
+        Path(a.out).mkdir(parents=True, exist_ok=True)
+        res = fit_refiner(cfg, a.pairs, a.out, log=_logger(Path(a.out)))
     except (DataError, MissingWeightsError, KeyError, ValueError) as exc:
         print(f"train_refiner: {exc}", file=sys.stderr)
         return 1
-    print(f"train_refiner: {res['step']} steps, final loss {res['losses'][-1]:.4f}, "
-          f"{res['seconds_per_step']:.3f} s/optimizer step -> {a.out}")
+    write_json(Path(a.out) / "selection.json", res)
+    tr, chosen = res["train"], res["selection"]["chosen"]
+    print(f"train_refiner: {tr['steps']} steps ({tr['seconds_per_step']:.3f} s/optimizer step); "
+          f"{res['selection']['note']}; chosen {chosen} -> {a.out}")
     return 0
 
 

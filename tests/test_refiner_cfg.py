@@ -1,5 +1,6 @@
 """Classifier-free guidance acts on the proxy latent only (prompt embedding identical)."""
 
+import pytest
 import torch
 
 from lightcrafter.refiner import Refiner, resolve_config
@@ -31,9 +32,29 @@ def test_uncond_branch_gets_zeroed_proxy():
     assert len(m.proxies) == 1  # scale 1: no unconditional pass
 
 
-def test_guidance_is_noop_when_proxy_is_the_dropout_value():
+class AnchoredRecorder(Recorder):
+    proxy_anchor = "x0"
+
+    def forward(self, z, zp, t, anchor=None):
+        self.proxies.append((zp.clone(), None if anchor is None else anchor.clone()))
+        return z * 0 + zp.mean()
+
+
+def test_anchored_uncond_branch_keeps_the_anchor_on_the_proxy():
+    m = AnchoredRecorder()
+    z, zp = torch.randn(1, 3, 4, 2, 2), torch.randn(1, 3, 4, 2, 2) + 1
+    guided_prediction(m, z, zp, 500, 4.0)
+    (c_in, c_anchor), (u_in, u_anchor) = m.proxies
+    assert torch.equal(c_in, zp) and c_anchor is None  # conditional: anchor defaults to the proxy input
+    assert torch.equal(u_in, torch.zeros_like(zp)) and torch.equal(u_anchor, zp)
+
+
+@pytest.mark.parametrize("anchor", ["none", "x0"])
+def test_guidance_is_noop_when_proxy_is_the_dropout_value(anchor):
     torch.manual_seed(0)
-    model = Refiner(resolve_config({"model": {"ae_coeffs": [8, 4, 4]}})).eval()
+    model = Refiner(resolve_config({"model": {"ae_coeffs": [8, 4, 4], "proxy_anchor": anchor}})).eval()
+    if anchor != "none":  # leave the zero initialisation so the test is not trivially true
+        torch.nn.init.normal_(model.transformer.proj_out.weight, std=0.02)
     z = torch.randn(1, 3, model.latent_channels, 4, 6)
     zero = torch.zeros_like(z)
     with torch.no_grad():

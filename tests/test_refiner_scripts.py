@@ -28,28 +28,52 @@ def _run(*args, cwd):
 
 @pytest.mark.slow
 def test_train_infer_evaluate(tmp_path):
+    """Selection on a validation scene carved from train, baselines, strips, evaluation of every method."""
+    import torch
+
     recs = []
-    for i, split in enumerate(["train", "train", "test"]):
+    for i, (scene, split) in enumerate([("a", "train"), ("a", "train"), ("b", "train"), ("c", "test")]):
         p = toy_pair(i, num_frames=5)
         _write_clip(tmp_path / f"p{i}/proxy", p["proxy"])
         _write_clip(tmp_path / f"p{i}/target", p["target"])
-        recs.append({"pair_id": f"p{i}", "kind": "synthetic", "proxy": f"p{i}/proxy", "target": f"p{i}/target",
-                     "num_frames": 5, "width": 48, "height": 32, "split": split})
+        recs.append({"pair_id": f"p{i}", "kind": "synthetic", "scene_id": scene, "proxy": f"p{i}/proxy",
+                     "target": f"p{i}/target", "num_frames": 5, "width": 48, "height": 32, "split": split})
+    recs[3]["source"] = "p3/target"  # an input video for the strip's first column
     write_jsonl(tmp_path / "pairs.jsonl", recs)
-    cfg = {"model": {"ae_coeffs": [8, 4, 4]}, "train": {"max_steps": 2, "grad_accum": 2}}
+    cfg = {"model": {"ae_coeffs": [8, 4, 4]}, "train": {"max_steps": 2, "grad_accum": 2},
+           "infer": {"num_steps": 4},
+           "select": {"val_scenes": 1, "checkpoints": [1], "strengths": [0.0, 0.5], "guidance_scales": [1.0],
+                      "max_val_pairs": 1},
+           "baselines": {"regressor_steps": 2, "affine_colour": True}}
     _run(SCRIPTS / "train_refiner.py", "--pairs", "pairs.jsonl", "--config-json", json.dumps(cfg), "--out", "m",
          "--threads", "1", cwd=tmp_path)
     assert (tmp_path / "m/model.pt").is_file() and (tmp_path / "m/train.log").is_file()
+    sel = json.loads((tmp_path / "m/selection.json").read_text())
+    assert len(sel["selection"]["table"]) == 2 * 2  # candidate steps x strengths x guidance scales
+    assert sel["carve"]["val_groups"] in (["a"], ["b"]) and "p3" not in sel["fit_pairs"] + sel["val_pairs"]
+    chosen = sel["selection"]["chosen"]
+    st = torch.load(tmp_path / "m/model.pt", weights_only=False)
+    assert st["config"]["infer"]["strength"] == chosen["strength"] and set(st["baselines"]) == {"regressor",
+                                                                                                  "affine_colour"}
+    # the workflow passes its infer section; the validation choice still applies (num_steps overridden)
     _run(SCRIPTS / "infer_refiner.py", "--model", "m/model.pt", "--pairs", "pairs.jsonl", "--out", "r",
-         "--config-json", json.dumps({"infer": {"num_steps": 2}}), "--threads", "1", cwd=tmp_path)
+         "--config-json", json.dumps({"infer": {"num_steps": 2, "strength": 1.0}}), "--threads", "1", cwd=tmp_path)
     man = json.loads((tmp_path / "r/manifest.json").read_text())
-    assert [e["pair_id"] for e in man["pairs"]] == ["p2"] and (tmp_path / "r/p2/0004.exr").is_file()
+    assert [e["pair_id"] for e in man["pairs"]] == ["p3"] and (tmp_path / "r/p3/0004.exr").is_file()
+    assert man["infer"]["strength"] == chosen["strength"] and man["infer"]["num_steps"] == 2
+    e = man["pairs"][0]
+    assert e["strip_columns"] == ["input", "proxy", "refined", "target"] and (tmp_path / e["strip"]).is_file()
+    assert (tmp_path / "r/baselines/regressor/p3/0004.exr").is_file()
     _run(SCRIPTS / "evaluate_refiner.py", "--pairs", "pairs.jsonl", "--refined", "r/manifest.json",
          "--out", "eval/metrics.json", cwd=tmp_path)
     m = json.loads((tmp_path / "eval/metrics.json").read_text())
     assert m["num_pairs"] == 1 and m["ae_round_trip_psnr_db_mean"] > 20
-    for k in ("refined", "proxy"):
+    assert m["methods"] == ["proxy", "refined", "affine_colour", "regressor"]
+    for k in m["methods"]:
         assert np.isfinite(m["mean"][k]["psnr_db"]) and 0 < m["mean"][k]["ssim"] <= 1
+    d = m["vs_proxy"]["refined"]["psnr_db"]
+    assert d["lo"] <= d["mean"] <= d["hi"]
+    assert d["mean"] == pytest.approx(m["mean"]["refined"]["psnr_db"] - m["mean"]["proxy"]["psnr_db"])
 
 
 def test_train_script_fails_clearly_without_train_pairs(tmp_path):

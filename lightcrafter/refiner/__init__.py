@@ -9,6 +9,27 @@ Public API:
   sample_latent(...), refine_video(model, proxy, cfg)  (sampler.py: CFG + overlap-fused tiling)
   plan_windows, tent_weights, fused_prediction  (tiling.py)
   PairsDataset, read_pairs                      (data.py)
+  fit_refiner(cfg, pairs, out_dir)              (fit.py: carve validation, train, select, baselines -> model.pt)
+  carve_validation                              (validation.py: whole train-split scenes held out)
+  fit_affine_colour, regress_video              (baselines.py)
+  clip_scores, bootstrap_mean_ci                (scoring.py)
+  write_strip                                   (strip.py: input | proxy | refined | target PNGs)
+
+Small scale. The paper fine-tunes a 5B model pretrained on video, so it can sample from pure noise.
+The ``tiny`` preset trains a 2-layer transformer from scratch on a few clips and has no such prior;
+sampling from pure noise drifts and the output loses the scene. What the tiny preset adds, each a
+config key (the ``paper`` preset keeps the paper's values):
+
+* ``infer.strength`` (SDEdit): start from the proxy latent noised to an intermediate timestep;
+* ``model.proxy_anchor``: the network predicts a correction of the proxy, zero at initialisation,
+  so an untrained model returns the proxy (model.py); the loss stays the v-MSE;
+* ``train.timesteps: sampler_range``: train on the timesteps sampling visits;
+* ``select.*``: checkpoint, strength and guidance chosen on validation scenes carved out of the train
+  split (never test); ``baselines.*``: a one-step regressor with the same network, and an affine
+  colour fit, trained on the same pairs and evaluated beside the refiner;
+* ``infer.num_samples``: the refined video is the mean of several samples (a posterior-mean
+  estimate, which PSNR rewards); ``model.ae_normalisation``, ``train.hflip``: latent scaling and
+  augmentation of the tiny model.
 """
 
 import importlib
@@ -25,6 +46,9 @@ _WHERE = {
     "build_scheduler": "schedule",
     "fused_prediction": "tiling", "plan_windows": "tiling", "tent_weights": "tiling",
     "load_model": "training", "train": "training",
+    "fit_refiner": "fit", "carve_validation": "validation",
+    "fit_affine_colour": "baselines", "regress_video": "baselines",
+    "clip_scores": "scoring", "bootstrap_mean_ci": "scoring", "write_strip": "strip",
 }
 
 
@@ -38,5 +62,6 @@ __all__ = [
     "CogVideoXVAE", "DCTPatchAutoencoder", "KEY_DOCS", "resolve_config", "PairsDataset", "read_pairs",
     "FrameCountError", "check_frames", "latent_frames", "pad_to_4k1", "MissingWeightsError", "Refiner",
     "refine_video", "sample_latent", "build_scheduler", "fused_prediction", "plan_windows", "tent_weights",
-    "load_model", "train",
+    "load_model", "train", "fit_refiner", "carve_validation", "fit_affine_colour", "regress_video",
+    "clip_scores", "bootstrap_mean_ci", "write_strip",
 ]

@@ -12,7 +12,12 @@ channel, e.g. [32, 8, 8]: chroma needs fewer); the first frame is causal (it alo
 time so only the temporal-DC coefficients are non-zero). Decoding is the transpose projection, so
 it is exact for the kept frequencies and lossless when all 256 coefficients are kept.
 Per-channel shift/scale (fitted on training targets by :meth:`fit_normalisation`) bring latents to
-roughly unit variance, as the CogVideoX VAE's scaling factor does.
+roughly unit variance (``normalisation="channel"``), or one scale for every channel brings them to
+unit variance on average (``"global"``, like the CogVideoX VAE's single scaling factor). With the
+global scale the transform stays orthogonal up to one factor, so a latent L2 distance is the pixel
+L2 distance (of the kept frequencies) times a constant and diffusion noise is white in pixel space;
+per-channel scaling instead weights the low-energy high-frequency coefficients up (in a
+v-MSE or L2 loss) by the inverse of their variance.
 
 :class:`CogVideoXVAE` (``paper``) wraps ``AutoencoderKLCogVideoX`` from a local path; it encodes with
 the posterior mode (deterministic, so target latents can be cached exactly) and multiplies by the
@@ -69,8 +74,11 @@ class DCTPatchAutoencoder(nn.Module):
     scale_spatial = BLOCK_S
     scale_temporal = BLOCK_T
 
-    def __init__(self, coeffs=(32, 8, 8)):
+    def __init__(self, coeffs=(32, 8, 8), normalisation: str = "channel"):
         super().__init__()
+        if normalisation not in ("channel", "global"):
+            raise ValueError(f"normalisation={normalisation!r}: use 'channel' or 'global'")
+        self.normalisation = normalisation
         self.keeps = [int(coeffs)] * 3 if isinstance(coeffs, (int, float)) else [int(c) for c in coeffs]
         if len(self.keeps) != 3:
             raise ValueError(f"coeffs={coeffs!r}: give one int or three (luma, chroma1, chroma2)")
@@ -130,7 +138,8 @@ class DCTPatchAutoencoder(nn.Module):
 
     @torch.no_grad()
     def fit_normalisation(self, videos) -> None:
-        """Set per-channel shift (mean) and scale (std, floored at 1e-3) from an iterable of videos."""
+        """Set per-channel shift (mean) and scale (std, floored at 1e-3) from an iterable of videos;
+        with ``normalisation="global"`` every channel's scale is the root mean of the channel variances."""
         s1 = torch.zeros(self.latent_channels, dtype=torch.float64)
         s2 = torch.zeros_like(s1)
         count = 0
@@ -142,7 +151,10 @@ class DCTPatchAutoencoder(nn.Module):
         if count == 0:
             raise ValueError("fit_normalisation: no videos")
         mean = s1 / count
-        std = (s2 / count - mean**2).clamp_min(0).sqrt().clamp_min(1e-3)
+        var = (s2 / count - mean**2).clamp_min(0)
+        if self.normalisation == "global":
+            var = var.mean().expand_as(var)
+        std = var.sqrt().clamp_min(1e-3)
         self.shift.copy_(mean.float())
         self.scale.copy_(std.float())
 

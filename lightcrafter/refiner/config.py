@@ -63,7 +63,10 @@ _BASE: dict = {
         "transformer": copy.deepcopy(TINY_TRANSFORMER),
         "ae_coeffs": [40, 12, 12],  # tiny autoencoder: DCT coefficients kept per 4x8x8 block for
         # (luma, chroma1, chroma2); latent channels = their sum
+        "ae_normalisation": "channel",  # tiny autoencoder: channel (unit variance per channel) | global
         "empty_prompt_cache": None,  # path of the cached empty-prompt embedding (.pt); paper only
+        "proxy_anchor": "none",  # none (paper: the network outputs v) | x0 | v: identity at initialisation
+        "anchor_affine": False,  # anchor = learned per-latent-channel affine map of the proxy (identity at init)
     },
     # --- diffusion parameterisation (see COGVIDEOX_5B_SCHEDULER)
     "scheduler": copy.deepcopy(COGVIDEOX_5B_SCHEDULER),
@@ -81,13 +84,18 @@ _BASE: dict = {
         "cond_noise_log_sigma_mean": -3.0,  # log sigma ~ N(mean, std) on proxy pixels in [-1, 1]
         "cond_noise_log_sigma_std": 0.5,
         "latent_window": 3,  # latent frames per training crop (paper: 13 = 49 pixel frames)
+        "timesteps": "all",  # all (paper: uniform over the 1000 training steps) | sampler_range
+        "hflip": False,  # mirror training samples left-right with probability 1/2
+        "anchor_lr": None,  # learning rate of the anchor's affine map (null = train.lr)
         "checkpoint_every": 50,  # optimizer steps
         "log_every": 1,
     },
     # --- inference
     "infer": {
         "num_steps": 50,
+        "strength": 1.0,  # SDEdit: 1 = start from pure noise (paper); s < 1 starts from the noised proxy
         "guidance_scale": 6.0,
+        "num_samples": 1,  # refined = mean of this many samples (different noise); 1 = one sample (paper)
         "sampler": "ddim",  # ddim | dpm (CogVideoXDPMScheduler: stochastic, carries previous x0)
         "window": 3,  # latent frames per tile (paper: 13)
         "overlap": 1,  # latent frames shared by neighbouring tiles (paper: 3)
@@ -99,10 +107,37 @@ _BASE: dict = {
         "max_train_pairs": None,
         "cache_pixels": True,  # keep decoded proxy/target frames in memory (exact; off at paper scale)
     },
+    # --- model selection on validation scenes carved out of the train split (never test)
+    "select": {
+        "val_scenes": 0,  # 0 = no selection (paper: infer.* as configured); n >= 1 scenes, or a fraction < 1
+        "max_val_pairs": 4,  # validation clips evaluated per candidate (cost)
+        "checkpoints": [],  # optimizer steps whose weights are candidates (the last step always is)
+        "strengths": [1.0],
+        "guidance_scales": [6.0],
+        "metric": "psnr_db",  # psnr_db | ssim: mean over validation clips, higher is better
+    },
+    # --- baselines trained and evaluated beside the refiner (same data, same network)
+    "baselines": {
+        "regressor_steps": 0,  # optimizer steps of the one-step regressor (same network, L2 on x0); 0 = off
+        "affine_colour": False,  # per-channel affine colour fit of proxy to target on the training pairs
+    },
+}
+
+# What a small model trained from scratch on a few clips needs (lightcrafter/refiner/__init__.py,
+# "Small scale"): start from the noised proxy (SDEdit), predict a correction of the proxy (identity
+# at initialisation), train on the timesteps sampling visits, pick checkpoint, strength and guidance
+# on validation scenes, and train the baselines it must beat.
+TINY_SMALL_SCALE: dict = {
+    "model": {"proxy_anchor": "x0", "anchor_affine": True, "ae_normalisation": "global"},
+    "train": {"lr": 3e-4, "timesteps": "sampler_range", "hflip": True, "anchor_lr": 1e-2},
+    "infer": {"strength": 0.1, "guidance_scale": 1.0},
+    "select": {"val_scenes": 0.25, "max_val_pairs": 4, "checkpoints": [], "strengths": [0.1, 0.3],
+               "guidance_scales": [1.0, 2.0]},
+    "baselines": {"regressor_steps": 150, "affine_colour": True},
 }
 
 PRESETS: dict[str, dict] = {
-    "tiny": {},
+    "tiny": copy.deepcopy(TINY_SMALL_SCALE),
     "paper": {
         "model": {
             "kind": "paper",
@@ -130,7 +165,16 @@ KEY_DOCS: dict[str, str] = {
     "model.transformer": "CogVideoXTransformer3DModel kwargs for kind=tiny (in/out channels are derived)",
     "model.ae_coeffs": "tiny autoencoder: DCT coefficients per 4x8x8 block for [luma, chroma1, chroma2] "
     "(latent channels = sum; [256, 256, 256] = lossless); the paper VAE has 16 latent channels",
+    "model.anchor_affine": "with a proxy anchor: the anchor is a learned per-latent-channel affine map of the proxy "
+    "latent (gain and bias per channel, zero-initialised: still the identity at initialisation), trained with "
+    "the network by the same loss; for the DCT autoencoder a per-frequency linear filter of the proxy",
+    "model.ae_normalisation": "tiny autoencoder latent scaling: channel (each channel to unit variance) | global "
+    "(one scale, like the CogVideoX VAE's scaling factor: latent L2 = pixel L2 up to a constant)",
     "model.empty_prompt_cache": "file caching the T5 embedding of the empty prompt (paper)",
+    "model.proxy_anchor": "none (paper: the network's output is v) | x0: x0_hat = proxy latent + F, i.e. "
+    "v = v_anchor - F / sqrt(1 - abar_t) | v: v = v_anchor + F; v_anchor is the v whose x0 estimate is the "
+    "proxy latent, F's output projection is zero-initialised, so an untrained model returns the proxy. "
+    "The anchor uses the proxy in both CFG branches (guidance acts on F's proxy input)",
     "scheduler": "diffusers CogVideoX scheduler kwargs (defaults: CogVideoX-5B's scheduler_config.json)",
     "train.lr": "AdamW learning rate (paper 1e-5; tiny default 1e-3 because it trains from scratch)",
     "train.weight_decay": "AdamW weight decay",
@@ -144,10 +188,22 @@ KEY_DOCS: dict[str, str] = {
     "train.cond_noise_log_sigma_mean": "mean of log sigma of pixel-space proxy noise (images in [-1, 1])",
     "train.cond_noise_log_sigma_std": "std of log sigma of pixel-space proxy noise",
     "train.latent_window": "latent frames per training crop (cropped from the globally encoded clip)",
+    "train.anchor_lr": "AdamW learning rate of the anchor's affine map (no weight decay); null = train.lr",
+    "train.hflip": "augmentation: mirror each training sample (proxy and target) left-right with probability 1/2",
+    "train.timesteps": "all (uniform over the scheduler's training steps, paper) | sampler_range: uniform over "
+    "[last timestep the sampler visits at infer.num_steps, first timestep at the largest strength in "
+    "select.strengths and infer.strength]",
     "train.checkpoint_every": "optimizer steps between checkpoints",
     "train.log_every": "optimizer steps between log lines",
     "infer.num_steps": "denoising steps (50)",
-    "infer.guidance_scale": "classifier-free guidance on the proxy latent (6.0); 1 disables the unconditional pass",
+    "infer.strength": "SDEdit strength in [0, 1]: keep int(num_steps * strength) steps and start from the proxy "
+    "latent noised to the first kept timestep; 1 = pure noise (paper); 0 = the proxy through the autoencoder. "
+    "Chosen on validation when select.val_scenes > 0",
+    "infer.guidance_scale": "classifier-free guidance on the proxy latent (6.0); 1 disables the unconditional pass. "
+    "Chosen on validation when select.val_scenes > 0",
+    "infer.num_samples": "the refined video is the pixel-wise mean of this many samples drawn with successive "
+    "noise from the run's generator: an estimate of the posterior mean, which PSNR/SSIM reward; 1 = a single "
+    "sample (paper). Costs num_samples x the sampling time",
     "infer.sampler": "ddim (CogVideoXDDIMScheduler, deterministic) | dpm (CogVideoXDPMScheduler, stochastic)",
     "infer.window": "latent frames per temporal tile (paper 13 = 49 pixel frames)",
     "infer.overlap": "latent frames shared by neighbouring tiles (paper 3 = 12 pixel frames)",
@@ -156,6 +212,18 @@ KEY_DOCS: dict[str, str] = {
     "data.exposure_ev": "exposure (EV) of the display transform applied to proxy and target alike",
     "data.max_train_pairs": "use at most this many training pairs (null = all)",
     "data.cache_pixels": "keep decoded frames of training pairs in memory (exact); false at paper scale",
+    "select.val_scenes": "validation scenes carved out of the train split by whole scene (scene_id, else clip_id), "
+    "deterministic in seed: an integer count, or a fraction < 1 of the train-split scenes (at least 1); "
+    "0 = no selection. Needs at least 2 train-split scenes, else selection is skipped and logged",
+    "select.max_val_pairs": "validation clips evaluated per candidate setting (the first n in pair-id order)",
+    "select.checkpoints": "optimizer steps whose weights are candidate models besides the last step",
+    "select.strengths": "candidate infer.strength values",
+    "select.guidance_scales": "candidate infer.guidance_scale values",
+    "select.metric": "psnr_db | ssim: the validation score (mean over clips) that picks checkpoint, strength, guidance",
+    "baselines.regressor_steps": "optimizer steps of the one-step deterministic regressor (same network and "
+    "anchor, proxy latent in both inputs, fixed timestep, L2 on the x0 latent); 0 = not trained",
+    "baselines.affine_colour": "fit a per-channel affine map proxy -> target (display values, least squares over "
+    "the fit pairs) and evaluate it as a baseline",
 }
 
 
@@ -188,4 +256,22 @@ def resolve_config(overrides: dict | None = None) -> dict:
         raise ValueError("infer.min_tent_weight must be > 0 (zero edge weights leave frames undefined)")
     if inf["pad_frames"] not in ("error", "repeat_last"):
         raise ValueError(f"infer.pad_frames={inf['pad_frames']!r}: use 'error' or 'repeat_last'")
+    sel = cfg["select"]
+    for s in [inf["strength"], *sel["strengths"]]:
+        if not 0.0 <= float(s) <= 1.0:
+            raise ValueError(f"strength {s}: must be in [0, 1] (infer.strength, select.strengths)")
+    if int(inf["num_samples"]) < 1:
+        raise ValueError(f"infer.num_samples={inf['num_samples']}: must be >= 1")
+    if cfg["model"]["ae_normalisation"] not in ("channel", "global"):
+        raise ValueError(f"model.ae_normalisation={cfg['model']['ae_normalisation']!r}: use 'channel' or 'global'")
+    if cfg["model"]["proxy_anchor"] not in ("none", "x0", "v"):
+        raise ValueError(f"model.proxy_anchor={cfg['model']['proxy_anchor']!r}: use 'none', 'x0' or 'v'")
+    if cfg["train"]["timesteps"] not in ("all", "sampler_range"):
+        raise ValueError(f"train.timesteps={cfg['train']['timesteps']!r}: use 'all' or 'sampler_range'")
+    if sel["metric"] not in ("psnr_db", "ssim"):
+        raise ValueError(f"select.metric={sel['metric']!r}: use 'psnr_db' or 'ssim'")
+    if float(sel["val_scenes"]) < 0 or (float(sel["val_scenes"]) >= 1 and float(sel["val_scenes"]) % 1):
+        raise ValueError(f"select.val_scenes={sel['val_scenes']}: an integer count >= 0 or a fraction in (0, 1)")
+    if not sel["strengths"] or not sel["guidance_scales"]:
+        raise ValueError("select.strengths and select.guidance_scales need at least one value each")
     return cfg

@@ -53,9 +53,13 @@ class PairsDataset:
     """Index-able list of pairs of one split; ``ds[i]`` -> {pair_id, proxy, target} (3, N, H, W) in [-1, 1]."""
 
     def __init__(self, pairs_path, split: str | None, exposure_ev: float = 0.0, root=None, limit=None,
-                 cache: bool = True):
+                 cache: bool = True, pair_ids=None):
+        """``pair_ids``: keep only these pairs (in manifest order), e.g. a validation carve-out."""
         self.pairs_path = Path(pairs_path)
         self.records = read_pairs(pairs_path, split)
+        if pair_ids is not None:
+            keep = set(pair_ids)
+            self.records = [r for r in self.records if r["pair_id"] in keep]
         if limit is not None:
             self.records = self.records[: int(limit)]
         self.exposure_ev = exposure_ev
@@ -107,3 +111,12 @@ class PairsDataset:
         if self.cache:
             self._cache[i] = item
         return item
+
+    def source_frames(self, i: int) -> torch.Tensor | None:
+        """(3, N, H, W) in [-1, 1] of the record's optional ``source`` (the input video under the
+        source light, a folder of linear EXR frames), or None when the record has none."""
+        r = self.records[i]
+        if not r.get("source"):
+            return None
+        return load_frames(_resolve(r["source"], self.root, self.pairs_path.parent), int(r["num_frames"]),
+                           self.exposure_ev)

@@ -9,6 +9,30 @@ of shape (1, max_text_seq_length, text_embed_dim), computed once and kept as a b
   ``model.empty_prompt_cache`` or computed once from ``{model_path}/text_encoder`` and cached there.
 
 The model output is the scheduler's ``v`` (v-prediction); the paper calls it the noise prediction.
+
+Proxy anchor (``model.proxy_anchor``; ``none`` in the paper preset). With the CogVideoX
+parameterisation z_t = sqrt(abar) x0 + sqrt(1 - abar) eps, v = sqrt(abar) eps - sqrt(1 - abar) x0 and
+x0_hat = sqrt(abar) z_t - sqrt(1 - abar) v, the *anchor* velocity
+
+    v_anchor(z_t, a, t) = (sqrt(abar_t) z_t - a) / sqrt(1 - abar_t)
+
+is the v whose x0 estimate is exactly the proxy latent ``a``. The transformer's output F is added to it:
+
+* ``x0``: v = v_anchor - F / sqrt(1 - abar_t), i.e. x0_hat = a + F: F is a correction of the proxy in
+  latent units, whose target x0 - a has the same scale at every t. The v-MSE loss becomes
+  |F - (x0 - a)|^2 / (1 - abar_t): the paper's loss and minimiser, reweighted towards small t.
+* ``v``: v = v_anchor + F (F's target (a - x0) / sqrt(1 - abar_t) grows as t -> 0).
+
+With ``model.anchor_affine`` the anchor is a learned per-latent-channel affine map of the proxy,
+``a' = a * (1 + gain) + bias`` (:class:`LatentAffine`, zero-initialised, so still the identity at
+initialisation): a per-frequency linear filter of the proxy (for the DCT autoencoder, one gain per
+kept DCT coefficient and colour channel), shared by every position and timestep, that the
+transformer's bottleneck (inner dim 256 < the 4 * C outputs of a 2x2 patch) cannot represent.
+
+The transformer's output projection is zero-initialised, so an untrained model predicts x0 = proxy at
+every step: sampling returns the proxy latent. The anchor is a fixed skip connection, not a network
+input: CFG's unconditional branch zeroes the network's proxy input but keeps the anchor, so guidance
+scales F's dependence on the proxy and an untrained model returns the proxy at every guidance scale.
 """
 
 from __future__ import annotations
@@ -71,6 +95,18 @@ def empty_prompt_embedding(cfg: dict, max_len: int, dim: int) -> torch.Tensor:
     return emb[:, :max_len]
 
 
+class LatentAffine(nn.Module):
+    """Per-latent-channel affine map x * (1 + gain) + bias on (B, F, C, h, w); the identity at init."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.gain = nn.Parameter(torch.zeros(channels))
+        self.bias = nn.Parameter(torch.zeros(channels))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * (1 + self.gain.view(1, 1, -1, 1, 1)) + self.bias.view(1, 1, -1, 1, 1)
+
+
 def grid_crop_region(grid_hw: tuple[int, int], base_w: int, base_h: int):
     """Centred region of the base (sample) token grid that a (h, w) token grid is resized into,
     aspect preserved -- the crop CogVideoX 1.0 uses for its 3-D RoPE. Returns ((top, left), (bottom, right))."""
@@ -107,7 +143,7 @@ def build_transformer(cfg: dict, latent_channels: int):
 def build_autoencoder(cfg: dict):
     m = cfg["model"]
     if m["kind"] == "tiny":
-        return DCTPatchAutoencoder(m["ae_coeffs"])
+        return DCTPatchAutoencoder(m["ae_coeffs"], m.get("ae_normalisation", "channel"))
     return CogVideoXVAE(str(require_model_path(cfg)), _dtype(m["dtype"]), m["vae_slicing"], m["vae_tiling"])
 
 
@@ -124,6 +160,19 @@ class Refiner(nn.Module):
         self.register_buffer(
             "prompt_embeds", empty_prompt_embedding(cfg, tc.max_text_seq_length, tc.text_embed_dim), persistent=False
         )
+        self.proxy_anchor = cfg["model"].get("proxy_anchor", "none")
+        from .schedule import build_scheduler
+
+        ab = build_scheduler(cfg, "ddim").alphas_cumprod.double()
+        self.register_buffer("alphas_cumprod", ab.float(), persistent=False)
+        self.anchor_map = (LatentAffine(self.ae.latent_channels)
+                           if self.proxy_anchor != "none" and cfg["model"].get("anchor_affine") else None)
+        if self.proxy_anchor != "none":
+            out = self.transformer.proj_out  # CogVideoX's last layer (after the adaptive norm)
+            with torch.no_grad():
+                out.weight.zero_()
+                if out.bias is not None:
+                    out.bias.zero_()
 
     @property
     def latent_channels(self) -> int:
@@ -144,8 +193,41 @@ class Refiner(nn.Module):
             embed_dim=tc.attention_head_dim, crops_coords=crops, grid_size=(gh, gw), temporal_size=frames, device=device
         )
 
-    def forward(self, noisy: torch.Tensor, proxy: torch.Tensor, timestep: torch.Tensor) -> torch.Tensor:
-        """noisy, proxy: (B, F, C, h, w) latents; timestep: (B,) ints -> v prediction (B, F, C, h, w)."""
+    def trainable_parameters(self) -> list:
+        """Transformer parameters, then the anchor map's (if any)."""
+        extra = list(self.anchor_map.parameters()) if self.anchor_map is not None else []
+        return [p for p in self.transformer.parameters() if p.requires_grad] + extra
+
+    def weights(self, transformer=None) -> dict:
+        """{"transformer": state dict[, "anchor_map": state dict]} (``transformer``: e.g. an unwrapped copy)."""
+        out = {"transformer": (transformer or self.transformer).state_dict()}
+        if self.anchor_map is not None:
+            out["anchor_map"] = self.anchor_map.state_dict()
+        return out
+
+    def load_weights(self, state: dict) -> None:
+        """Load what :meth:`weights` wrote (extra keys of a checkpoint dict are ignored)."""
+        self.transformer.load_state_dict(state["transformer"])
+        if self.anchor_map is not None:
+            if "anchor_map" not in state:
+                raise KeyError("checkpoint has no anchor_map but model.anchor_affine is on; retrain")
+            self.anchor_map.load_state_dict(state["anchor_map"])
+
+    def _abar(self, timestep: torch.Tensor) -> torch.Tensor:
+        return self.alphas_cumprod.to(timestep.device)[timestep.long()].view(-1, 1, 1, 1, 1)
+
+    def x0_from_v(self, noisy: torch.Tensor, v: torch.Tensor, timestep: torch.Tensor) -> torch.Tensor:
+        """x0 estimate sqrt(abar) z_t - sqrt(1 - abar) v (the scheduler's own conversion)."""
+        ab = self._abar(timestep)
+        return ab.sqrt() * noisy - (1 - ab).sqrt() * v
+
+    def forward(self, noisy: torch.Tensor, proxy: torch.Tensor, timestep: torch.Tensor,
+                anchor: torch.Tensor | None = None) -> torch.Tensor:
+        """noisy, proxy: (B, F, C, h, w) latents; timestep: (B,) ints -> v prediction (B, F, C, h, w).
+
+        ``anchor``: the latent the proxy anchor uses (default ``proxy``; CFG's unconditional branch
+        passes the real proxy here and zeros as ``proxy``). Ignored when ``model.proxy_anchor`` is none.
+        """
         if noisy.shape != proxy.shape:
             raise ValueError(f"noisy {tuple(noisy.shape)} and proxy {tuple(proxy.shape)} latents must match")
         b, f, _, h, w = noisy.shape
@@ -158,5 +240,13 @@ class Refiner(nn.Module):
             timestep=timestep,
             image_rotary_emb=self._rotary(f, h, w, x.device),
             return_dict=False,
-        )[0]
-        return out.float()
+        )[0].float()
+        if self.proxy_anchor == "none":
+            return out
+        a = proxy if anchor is None else anchor
+        if self.anchor_map is not None:
+            a = self.anchor_map(a)
+        ab = self._abar(timestep)
+        s1 = (1 - ab).sqrt()
+        v_anchor = (ab.sqrt() * noisy - a) / s1
+        return v_anchor - out / s1 if self.proxy_anchor == "x0" else v_anchor + out

@@ -43,3 +43,34 @@ def build_scheduler(cfg: dict, sampler: str | None = None):
     if sched.config.prediction_type != "v_prediction":
         raise ValueError(f"scheduler prediction_type={sched.config.prediction_type!r}; the refiner is v-prediction")
     return sched
+
+
+def max_strength(cfg: dict) -> float:
+    """The largest SDEdit strength inference may use: infer.strength and, when validation selection
+    is on, every candidate in select.strengths."""
+    vals = [float(cfg["infer"].get("strength", 1.0))]
+    if float(cfg.get("select", {}).get("val_scenes", 0) or 0) > 0:
+        vals += [float(s) for s in cfg["select"]["strengths"]]
+    return max(vals)
+
+
+def train_timestep_range(cfg: dict) -> tuple[int, int]:
+    """Inclusive [lo, hi] range training draws timesteps from (``train.timesteps``).
+
+    ``all``: every training step [0, num_train_timesteps - 1] (paper). ``sampler_range``: from the last
+    timestep the sampler visits at ``infer.num_steps`` (trailing spacing) up to the first timestep it
+    visits at :func:`max_strength` -- the range where the model is ever asked for a prediction. Below
+    lo the v-MSE weight 1 / (1 - abar_t) of an x0-anchored model grows to ~1200 at t = 0.
+    """
+    from .sampler import kept_timesteps
+
+    sched = build_scheduler(cfg, "ddim")
+    n_train = int(sched.config.num_train_timesteps)
+    if cfg["train"].get("timesteps", "all") == "all":
+        return 0, n_train - 1
+    steps = int(cfg["infer"]["num_steps"])
+    sched.set_timesteps(steps)
+    kept = kept_timesteps(sched.timesteps, steps, max_strength(cfg))
+    if len(kept) == 0:  # strength so small that no step runs: train where the last step would be
+        kept = sched.timesteps[-1:]
+    return int(kept[-1]), int(kept[0])

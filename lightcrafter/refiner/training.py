@@ -16,6 +16,18 @@ runs bf16 mixed precision. All random draws stay on the CPU generator, then move
 
 Latent caching: target latents are cached in memory (exact: the encoder is deterministic); proxy
 latents are recomputed each step because the conditioning noise is added in pixel space.
+
+Augmentation: with ``train.hflip`` each sample is mirrored left-right with probability 1/2 (pixel
+space, before encoding; the coin is drawn only when the key is on, so other runs keep their draws).
+
+Timesteps: uniform over [lo, hi] of :func:`schedule.train_timestep_range` (``train.timesteps``).
+
+Objectives: ``diffusion`` (the paper's v-MSE) or ``regression`` (the one-step baseline: the same
+network with the proxy latent in both inputs at the fixed timestep ``REGRESSOR_TIMESTEP``, L2
+between its x0 estimate and the target latent; no proxy dropout, same conditioning noise).
+
+Snapshots: the transformer weights at the optimizer steps in ``snapshot_steps`` are kept in
+``out_dir/candidates/step_XXXXXXX.pt`` for checkpoint selection on validation.
 """
 
 from __future__ import annotations
@@ -34,10 +46,13 @@ from lightcrafter.io import atomic_path, write_text
 
 from .conditioning import drop_proxy_latent, noisy_proxy, sample_log_sigma
 from .model import Refiner
-from .schedule import build_scheduler
+from .schedule import build_scheduler, train_timestep_range
 
 CKPT_DIR = "checkpoints"
+CANDIDATES = "candidates"
 LATEST = "latest.txt"
+REGRESSOR_TIMESTEP = 999  # fixed timestep input of the one-step regressor
+OBJECTIVES = ("diffusion", "regression")
 
 
 def _logger(out_dir: Path) -> logging.Logger:
@@ -64,12 +79,33 @@ def latest_checkpoint(out_dir: Path) -> Path | None:
 
 
 def training_loss(model: Refiner, sched, target_lat: torch.Tensor, proxy_lat: torch.Tensor, t: torch.Tensor,
-                  noise: torch.Tensor) -> torch.Tensor:
-    """MSE between the model's v and the scheduler's v target at timesteps t (B,)."""
+                  noise: torch.Tensor, anchor: torch.Tensor | None = None) -> torch.Tensor:
+    """MSE between the model's v and the scheduler's v target at timesteps t (B,).
+
+    ``anchor``: the proxy latent the proxy anchor uses when ``proxy_lat`` is the dropped (zeroed)
+    network input -- as in CFG's unconditional branch at inference. Ignored by un-anchored models.
+    """
     noisy = sched.add_noise(target_lat, noise, t)
     v_target = sched.get_velocity(target_lat, noise, t)
-    v_pred = model(noisy, proxy_lat, t)
+    if anchor is not None and getattr(model, "proxy_anchor", "none") != "none":
+        v_pred = model(noisy, proxy_lat, t, anchor=anchor)
+    else:
+        v_pred = model(noisy, proxy_lat, t)
     return torch.mean((v_pred - v_target) ** 2)
+
+
+def regression_x0(model: Refiner, proxy_lat: torch.Tensor) -> torch.Tensor:
+    """One-step regressor: x0 estimate of the network with the proxy latent in both inputs."""
+    t = torch.full((proxy_lat.shape[0],), REGRESSOR_TIMESTEP, dtype=torch.long, device=proxy_lat.device)
+    return model.x0_from_v(proxy_lat, model(proxy_lat, proxy_lat, t), t)
+
+
+def regression_loss(model: Refiner, target_lat: torch.Tensor, proxy_lat: torch.Tensor) -> torch.Tensor:
+    return torch.mean((regression_x0(model, proxy_lat) - target_lat) ** 2)
+
+
+def snapshot_path(out_dir: Path, step: int) -> Path:
+    return Path(out_dir) / CANDIDATES / f"step_{step:07d}.pt"
 
 
 class TargetLatentCache:
@@ -88,16 +124,21 @@ class TargetLatentCache:
 _RESUMABLE_CHANGES = {("train", "max_steps"), ("train", "checkpoint_every"), ("train", "log_every")}
 
 
-def run_fingerprint(cfg: dict, dataset) -> str:
-    """Hash of what a checkpoint's state depends on: the config (bar run-length keys) and the data
-    (the dataset's ``data_identity()`` when it has one -- re-rendered frames change it -- else the pair ids).
+def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
+    """Hash of what a checkpoint's state depends on: the config (bar run-length keys, inference and
+    selection keys), the objective, the training timestep range and the data (the dataset's
+    ``data_identity()`` when it has one -- re-rendered frames change it -- else the pair ids).
 
     A checkpoint is only resumed when this matches; otherwise training starts afresh.
     """
     import hashlib
     import json
 
-    c = {k: (dict(v) if isinstance(v, dict) else v) for k, v in cfg.items() if k != "infer"}
+    c = {k: (dict(v) if isinstance(v, dict) else v) for k, v in cfg.items()
+         if k not in ("infer", "select", "baselines")}
+    c["objective"] = objective
+    if objective == "diffusion":
+        c["timestep_range"] = list(train_timestep_range(cfg))
     for sec, key in _RESUMABLE_CHANGES:
         c.get(sec, {}).pop(key, None)
     if hasattr(dataset, "data_identity"):
@@ -108,13 +149,18 @@ def run_fingerprint(cfg: dict, dataset) -> str:
     return hashlib.sha256(blob).hexdigest()[:16]
 
 
-def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True) -> dict:
+def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True,
+          objective: str = "diffusion", snapshot_steps=(), final_name: str = "model.pt") -> dict:
     """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float}.
 
     ``dataset[i]`` -> {"pair_id", "proxy", "target"} with (3, N, H, W) tensors in [-1, 1].
     ``stop_after`` stops after that many optimizer steps of THIS call (simulates a killed job;
-    a checkpoint is written first). The final weights go to ``out_dir/model.pt``.
+    a checkpoint is written first). The final weights go to ``out_dir/final_name``.
+    ``objective``: ``diffusion`` | ``regression`` (module docstring). ``snapshot_steps``: optimizer
+    steps whose transformer weights are kept as selection candidates (module docstring).
     """
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective={objective!r}: use one of {OBJECTIVES}")
     from accelerate import Accelerator
 
     out_dir = Path(out_dir)
@@ -131,23 +177,30 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     if cfg["model"]["kind"] == "tiny":
         n_fit = min(len(dataset), 8)
         model.ae.fit_normalisation(dataset[i]["target"][None] for i in range(n_fit))
-    params = [p for p in model.transformer.parameters() if p.requires_grad]
-    opt = torch.optim.AdamW(params, lr=tr["lr"], betas=tuple(tr["adam_betas"]), weight_decay=tr["weight_decay"])
+    params = model.trainable_parameters()
+    groups = [{"params": [p for p in model.transformer.parameters() if p.requires_grad]}]
+    if model.anchor_map is not None:  # its own learning rate, no weight decay (it is an identity offset)
+        groups.append({"params": list(model.anchor_map.parameters()), "weight_decay": 0.0,
+                       "lr": tr["anchor_lr"] if tr["anchor_lr"] is not None else tr["lr"]})
+    opt = torch.optim.AdamW(groups, lr=tr["lr"], betas=tuple(tr["adam_betas"]), weight_decay=tr["weight_decay"])
     warm = max(int(tr["warmup_steps"]), 0)
     lr_sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: min(1.0, (s + 1) / warm) if warm else 1.0)
     gen = torch.Generator().manual_seed(cfg["seed"])
     step, losses = 0, []
 
-    fingerprint = run_fingerprint(cfg, dataset)
+    fingerprint = run_fingerprint(cfg, dataset, objective)
     ckpt = latest_checkpoint(out_dir)
     st = torch.load(ckpt, map_location="cpu", weights_only=False) if ckpt is not None else None
     if st is not None and st.get("fingerprint") != fingerprint:
         log.info("checkpoint %s belongs to another config or data set; training from scratch", ckpt.name)
-        for old in (out_dir / CKPT_DIR).glob("*"):
+        for old in [*(out_dir / CKPT_DIR).glob("*"), *(out_dir / CANDIDATES).glob("*")]:
             old.unlink()
         st = None
+    if st is None:  # snapshots of an earlier (killed or finished) run with other settings are stale
+        for old in (out_dir / CANDIDATES).glob("*"):
+            old.unlink()
     if st is not None:
-        model.transformer.load_state_dict(st["transformer"])
+        model.load_weights(st)
         model.ae.load_state_dict(st["ae"])
         opt.load_state_dict(st["optimizer"])
         lr_sched.load_state_dict(st["lr_scheduler"])
@@ -166,12 +219,15 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     model.transformer, opt, lr_sched = acc.prepare(model.transformer, opt, lr_sched)
     acc.step = step * tr["grad_accum"]  # accumulation phase restarts at an optimizer-step boundary
     sched = build_scheduler(cfg, "ddim")
+    t_lo, t_hi = train_timestep_range(cfg)
+    full_range = (t_lo, t_hi) == (0, sched.config.num_train_timesteps - 1)
+    snapshot_steps = {int(s) for s in snapshot_steps}
     cache = TargetLatentCache(model.ae)
     model.transformer.train()
 
     def checkpoint():
         state = {
-            "transformer": acc.unwrap_model(model.transformer).state_dict(),
+            **model.weights(acc.unwrap_model(model.transformer)),
             "ae": model.ae.state_dict(),
             "optimizer": opt.state_dict(),
             "lr_scheduler": lr_sched.state_dict(),
@@ -200,16 +256,26 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         for _ in range(tr["grad_accum"]):
             with acc.accumulate(model.transformer):
                 item = dataset[int(torch.randint(len(dataset), (1,), generator=gen))]
-                tgt = cache.get(item["pair_id"], item["target"].to(dev))
+                flip = bool(tr["hflip"]) and bool(torch.rand((), generator=gen) < 0.5)
+                if flip:  # mirror proxy and target alike (a mirrored scene is a valid scene)
+                    item = {**item, "proxy": item["proxy"].flip(-1), "target": item["target"].flip(-1)}
+                tgt = cache.get(item["pair_id"] + ("#flip" if flip else ""), item["target"].to(dev))
                 f = tgt.shape[1]
                 s = int(torch.randint(max(f - window, 0) + 1, (1,), generator=gen))
                 e = min(f, s + window)
                 log_sigma = sample_log_sigma(gen, tr["cond_noise_log_sigma_mean"], tr["cond_noise_log_sigma_std"])
                 zp = model.ae.encode(noisy_proxy(item["proxy"][None], log_sigma, gen).to(dev))[:, s:e].float()
-                zp, _ = drop_proxy_latent(zp, tr["proxy_dropout"], gen)
-                t = torch.randint(sched.config.num_train_timesteps, (1,), generator=gen)
-                noise = torch.randn(zp.shape, generator=gen).to(dev)
-                loss = training_loss(model, sched, tgt[:, s:e].float(), zp, t.to(dev), noise)
+                if objective == "regression":
+                    loss = regression_loss(model, tgt[:, s:e].float(), zp)
+                else:
+                    zp_full = zp
+                    zp, _ = drop_proxy_latent(zp, tr["proxy_dropout"], gen)
+                    if full_range:  # the paper's draw (kept bit-identical to earlier runs)
+                        t = torch.randint(sched.config.num_train_timesteps, (1,), generator=gen)
+                    else:
+                        t = torch.randint(t_lo, t_hi + 1, (1,), generator=gen)
+                    noise = torch.randn(zp.shape, generator=gen).to(dev)
+                    loss = training_loss(model, sched, tgt[:, s:e].float(), zp, t.to(dev), noise, anchor=zp_full)
                 acc.backward(loss)
                 if acc.sync_gradients:
                     acc.clip_grad_norm_(params, tr["max_grad_norm"])
@@ -224,31 +290,48 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         bar.set_postfix(loss=f"{losses[-1]:.4f}")
         if step % tr["log_every"] == 0:
             log.info("step %d loss %.6f lr %.3g", step, losses[-1], lr_sched.get_last_lr()[0])
+        if step in snapshot_steps:
+            save_checkpoint(snapshot_path(out_dir, step), {**model.weights(acc.unwrap_model(model.transformer)),
+                                                           "step": step, "fingerprint": fingerprint})
         if step % tr["checkpoint_every"] == 0 or step == tr["max_steps"] or done_here == stop_after:
             checkpoint()
     bar.close()
     sec = (time.perf_counter() - t_start) / max(done_here, 1)
     if step >= tr["max_steps"]:
-        save_model(out_dir / "model.pt", acc.unwrap_model(model.transformer), model.ae, cfg)
+        save_model(out_dir / final_name, model.weights(acc.unwrap_model(model.transformer)), model.ae, cfg)
         with atomic_path(out_dir / "loss_curve.json") as tmp:
             tmp.write_text(json.dumps({"loss_per_optimizer_step": losses, "seconds_per_optimizer_step": sec}))
     log.info("stopped at step %d (%.3f s/optimizer step this run)", step, sec)
     return {"losses": losses, "step": step, "seconds_per_step": sec}
 
 
-def save_model(path: Path, transformer, ae, cfg: dict) -> None:
-    save_checkpoint(path, {"transformer": transformer.state_dict(), "ae": ae.state_dict(), "config": cfg})
+def save_model(path: Path, weights: dict, ae, cfg: dict) -> None:
+    """``weights``: :meth:`Refiner.weights` (transformer and, if any, anchor map state dicts)."""
+    save_checkpoint(path, {**weights, "ae": ae.state_dict(), "config": cfg})
 
 
-def load_model(path, cfg_overrides: dict | None = None) -> Refiner:
-    """Rebuild a trained :class:`Refiner` from ``model.pt`` (its stored config, optionally overridden)."""
+SELECTED_INFER_KEYS = ("strength", "guidance_scale")
+
+
+def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = True) -> Refiner:
+    """Rebuild a trained :class:`Refiner` from ``model.pt`` (its stored config, optionally overridden).
+
+    When the file records a validation selection (``selection.chosen``), the chosen ``infer.strength``
+    and ``infer.guidance_scale`` are applied after the overrides (``apply_selection=False`` keeps the
+    overrides), so a workflow that passes its ``infer`` section still runs what validation picked.
+    The selection record is available as ``model.selection`` (None if there was none).
+    """
     from .config import _merge, resolve_config
 
     st = torch.load(path, map_location="cpu", weights_only=False)
     cfg = st["config"]
     if cfg_overrides:
         cfg = resolve_config(_merge(cfg, cfg_overrides))
+    chosen = (st.get("selection") or {}).get("chosen")
+    if apply_selection and chosen:
+        cfg = resolve_config(_merge(cfg, {"infer": {k: chosen[k] for k in SELECTED_INFER_KEYS if k in chosen}}))
     model = Refiner(cfg)
-    model.transformer.load_state_dict(st["transformer"])
+    model.load_weights(st)
     model.ae.load_state_dict(st["ae"])
+    model.selection = st.get("selection")
     return model.eval()

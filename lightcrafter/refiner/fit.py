@@ -1,0 +1,182 @@
+"""Fit a refiner end to end: carve validation, train, select on validation, train the baselines.
+
+:func:`fit_refiner` is what ``scripts/train_refiner.py`` runs:
+
+1. **Carve** validation scenes out of the train split (:mod:`.validation`; ``select.val_scenes``).
+   The rest (the *fit* pairs) is all that any model or baseline is trained on.
+2. **Train** the diffusion refiner on the fit pairs (:func:`.training.train`), keeping the weights at
+   ``select.checkpoints`` and at the last step as candidates.
+3. **Select** on validation: every (candidate step, ``select.strengths``, ``select.guidance_scales``)
+   refines up to ``select.max_val_pairs`` validation clips (taken round-robin over validation scenes)
+   with the run's sampler and seed; the highest mean ``select.metric`` wins (ties: the earlier step,
+   then the smaller strength, then the smaller guidance). Without validation scenes nothing is
+   selected and ``infer.*`` is used as configured.
+4. **Baselines** (``baselines.*``): the one-step regressor (same network, trained on the fit pairs for
+   ``baselines.regressor_steps``) and the affine colour fit, both scored on the same validation clips.
+5. Writes ``out_dir/model.pt`` last: the chosen weights, the config with the chosen
+   ``infer.strength``/``guidance_scale``, the selection table, the baselines and the carve-out.
+
+Resumable: a killed run resumes training from its checkpoints (bit-exact) and redoes the cheap,
+deterministic selection. Test pairs are never read.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lightcrafter.io import DataError
+
+from .baselines import apply_affine_colour, fit_affine_colour, regress_video
+from .data import PairsDataset, read_pairs
+from .model import Refiner
+from .sampler import refine_video
+from .scoring import clip_scores
+from .training import load_model, save_checkpoint, snapshot_path, train
+from .validation import carve_validation, pair_group
+
+DIFFUSION_FINAL = "diffusion.pt"
+REGRESSOR_DIR = "regressor"
+
+
+def _round_robin(records: list[dict], ids: list[str], limit: int) -> list[str]:
+    """Up to ``limit`` pair ids of ``ids``, alternating over their groups (manifest order inside one)."""
+    by_group: dict[str, list[str]] = {}
+    for r in records:
+        if r["pair_id"] in ids:
+            by_group.setdefault(pair_group(r), []).append(r["pair_id"])
+    out = []
+    for row in itertools.zip_longest(*[by_group[g] for g in sorted(by_group)]):
+        out += [p for p in row if p is not None]
+    return out[: max(int(limit), 0)]
+
+
+def score_method(fn, dataset) -> dict:
+    """Apply ``fn(item) -> (3, N, H, W)`` to every item; per-pair scores, means and seconds per clip."""
+    rows, secs = [], []
+    for i in range(len(dataset)):
+        item = dataset[i]
+        t0 = time.perf_counter()
+        out = fn(item)
+        secs.append(time.perf_counter() - t0)
+        rows.append({"pair_id": item["pair_id"], **clip_scores(out, item["target"])})
+    return {"pairs": rows, "psnr_db": float(np.mean([r["psnr_db"] for r in rows])),
+            "ssim": float(np.mean([r["ssim"] for r in rows])), "seconds_per_clip": float(np.mean(secs))}
+
+
+def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None):
+    """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``)."""
+    def fn(item):
+        gen = torch.Generator().manual_seed(cfg["seed"])
+        return refine_video(model, item["proxy"][None], cfg, generator=gen, strength=strength,
+                            guidance_scale=guidance_scale, num_steps=num_steps)[0]
+    return fn
+
+
+def _candidate_model(cfg: dict, out_dir: Path, step: int, final_step: int, ae_state: dict) -> Refiner:
+    if step == final_step:
+        return load_model(out_dir / DIFFUSION_FINAL, apply_selection=False)
+    model = Refiner(cfg)
+    model.load_weights(torch.load(snapshot_path(out_dir, step), map_location="cpu", weights_only=False))
+    model.ae.load_state_dict(ae_state)
+    return model.eval()
+
+
+def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = True,
+                log: logging.Logger | None = None) -> dict:
+    """Steps 1-5 of the module docstring; returns the summary stored in ``model.pt`` (bar weights)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log = log or logging.getLogger("lightcrafter.refiner.fit")
+    sel, base, data = cfg["select"], cfg["baselines"], cfg["data"]
+    records = read_pairs(pairs_path, "train")
+    if data["max_train_pairs"] is not None:
+        records = records[: int(data["max_train_pairs"])]
+    if not records:
+        raise DataError(f"{pairs_path}: no pairs with split == 'train'")
+    carve = carve_validation(records, sel["val_scenes"], cfg["seed"])
+    log.info("validation: %s (val scenes %s)", carve["note"], carve["val_groups"])
+    kw = dict(exposure_ev=data["exposure_ev"], root=root)
+    fit_ds = PairsDataset(pairs_path, "train", cache=data["cache_pixels"], pair_ids=carve["fit"], **kw)
+    val_ids = _round_robin(records, carve["val"], sel["max_val_pairs"])
+    val_ds = PairsDataset(pairs_path, "train", cache=True, pair_ids=val_ids, **kw)
+    selecting = len(val_ds) > 0
+
+    max_steps = int(cfg["train"]["max_steps"])
+    steps = sorted({int(s) for s in sel["checkpoints"] if 0 < int(s) < max_steps} | {max_steps}) if selecting \
+        else [max_steps]
+    t0 = time.perf_counter()
+    res = train(cfg, fit_ds, out_dir, snapshot_steps=steps, final_name=DIFFUSION_FINAL, progress=progress)
+    train_seconds = time.perf_counter() - t0
+    final = torch.load(out_dir / DIFFUSION_FINAL, map_location="cpu", weights_only=False)
+
+    summary: dict = {"carve": carve, "val_pairs": val_ds.pair_ids, "fit_pairs": fit_ds.pair_ids,
+                     "train": {"steps": res["step"], "seconds_per_step": res["seconds_per_step"],
+                               "seconds_this_run": train_seconds}}
+    weight_keys = ("transformer", "anchor_map")
+    chosen_sd = {k: final[k] for k in weight_keys if k in final}
+    t0 = time.perf_counter()
+    if selecting:
+        table = []
+        for step in steps:
+            model = _candidate_model(cfg, out_dir, step, max_steps, final["ae"])
+            for s, g in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"])):
+                sc = score_method(refine_fn(model, cfg, float(s), float(g)), val_ds)
+                table.append({"step": step, "strength": float(s), "guidance_scale": float(g),
+                              "psnr_db": sc["psnr_db"], "ssim": sc["ssim"], "seconds_per_clip": sc["seconds_per_clip"]})
+                log.info("validation step %d strength %.2f guidance %.1f: %.3f dB, SSIM %.4f", step, s, g,
+                         sc["psnr_db"], sc["ssim"])
+        metric = sel["metric"]
+        best = max(table, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"]))
+        chosen = {"step": best["step"], "strength": best["strength"], "guidance_scale": best["guidance_scale"],
+                  "metric": metric, "value": best[metric]}
+        if best["step"] != max_steps:
+            snap = torch.load(snapshot_path(out_dir, best["step"]), map_location="cpu", weights_only=False)
+            chosen_sd = {k: snap[k] for k in weight_keys if k in snap}
+        proxy = score_method(lambda item: item["proxy"], val_ds)
+        summary["selection"] = {"chosen": chosen, "table": table, "val_proxy": {k: proxy[k] for k in ("psnr_db", "ssim")},
+                                "num_val_pairs": len(val_ds), "note": carve["note"]}
+        log.info("chosen on validation: %s (proxy alone %.3f dB)", chosen, proxy["psnr_db"])
+    else:
+        summary["selection"] = {"chosen": None, "note": carve["note"] if float(sel["val_scenes"]) > 0
+                                else "selection off (select.val_scenes = 0)"}
+    summary["selection"]["seconds"] = time.perf_counter() - t0
+
+    baselines: dict = {}
+    if int(base["regressor_steps"]) > 0:
+        rcfg = copy.deepcopy(cfg)
+        rcfg["train"]["max_steps"] = int(base["regressor_steps"])
+        t0 = time.perf_counter()
+        rres = train(rcfg, fit_ds, out_dir / REGRESSOR_DIR, objective="regression", final_name="model.pt",
+                     progress=progress)
+        rst = torch.load(out_dir / REGRESSOR_DIR / "model.pt", map_location="cpu", weights_only=False)
+        baselines["regressor"] = {**{k: rst[k] for k in weight_keys if k in rst}, "ae": rst["ae"],
+                                  "steps": rres["step"], "seconds_this_run": time.perf_counter() - t0}
+        if selecting:
+            reg = Refiner(cfg)
+            reg.load_weights(rst)
+            reg.ae.load_state_dict(rst["ae"])
+            sc = score_method(lambda item: regress_video(reg.eval(), item["proxy"][None])[0], val_ds)
+            baselines["regressor"]["val"] = {k: sc[k] for k in ("psnr_db", "ssim")}
+    if base["affine_colour"]:
+        baselines["affine_colour"] = fit_affine_colour(fit_ds)
+        if selecting:
+            sc = score_method(lambda item: apply_affine_colour(baselines["affine_colour"], item["proxy"]), val_ds)
+            baselines["affine_colour"]["val"] = {k: sc[k] for k in ("psnr_db", "ssim")}
+
+    out_cfg = copy.deepcopy(cfg)
+    if summary["selection"]["chosen"]:
+        out_cfg["infer"]["strength"] = summary["selection"]["chosen"]["strength"]
+        out_cfg["infer"]["guidance_scale"] = summary["selection"]["chosen"]["guidance_scale"]
+    save_checkpoint(out_dir / "model.pt", {**chosen_sd, "ae": final["ae"], "config": out_cfg,
+                                           "selection": summary["selection"], "baselines": baselines,
+                                           "carve": carve, "train": summary["train"]})
+    summary["baselines"] = {k: {kk: vv for kk, vv in v.items() if kk not in ("transformer", "anchor_map", "ae")}
+                            for k, v in baselines.items()}
+    return summary

@@ -1,0 +1,234 @@
+"""Small-scale refiner: SDEdit start, identity at initialisation, timestep range, validation carve-out,
+baselines and the statistics the evaluation reports."""
+
+import pytest
+import torch
+
+from lightcrafter.refiner import Refiner, build_scheduler, resolve_config, sample_latent
+from lightcrafter.refiner.sampler import kept_timesteps
+
+torch.set_num_threads(1)
+
+SMALL = {"model": {"ae_coeffs": [8, 4, 4]}}
+
+
+class FirstInput(torch.nn.Module):
+    """Records the first noisy latent it sees and predicts v = 0."""
+
+    proxy_anchor = "none"
+
+    def __init__(self):
+        super().__init__()
+        self.seen = []
+
+    def forward(self, z, zp, t):
+        self.seen.append((z.clone(), int(t[0])))
+        return torch.zeros_like(z)
+
+
+@pytest.mark.parametrize("sampler", ["ddim", "dpm"])
+def test_untrained_anchored_model_returns_the_proxy(sampler):
+    """Identity at initialisation, at every strength and guidance scale (anchor in both CFG branches)."""
+    torch.manual_seed(0)
+    cfg = resolve_config({**SMALL, "infer": {"sampler": sampler, "num_steps": 8}})
+    assert cfg["model"]["proxy_anchor"] == "x0"
+    model = Refiner(cfg).eval()
+    zp = torch.randn(1, 3, model.latent_channels, 4, 6)
+    for strength in (0.0, 0.3, 1.0):
+        for gs in (1.0, 6.0):
+            z = sample_latent(model, zp, cfg, strength=strength, guidance_scale=gs,
+                              generator=torch.Generator().manual_seed(1))
+            assert torch.allclose(z, zp, atol=1e-5), (strength, gs)
+
+
+def test_v_anchor_predicts_the_proxy_as_x0():
+    torch.manual_seed(0)
+    for mode in ("x0", "v"):
+        model = Refiner(resolve_config({**SMALL, "model": {**SMALL["model"], "proxy_anchor": mode}})).eval()
+        z, zp = torch.randn(1, 3, model.latent_channels, 4, 6), torch.randn(1, 3, model.latent_channels, 4, 6)
+        for t in (0, 39, 500, 999):
+            tt = torch.tensor([t])
+            with torch.no_grad():
+                x0 = model.x0_from_v(z, model(z, zp, tt), tt)
+            assert torch.allclose(x0, zp, atol=1e-4), (mode, t)
+
+
+def test_paper_preset_keeps_the_paper_behaviour():
+    cfg = resolve_config({"preset": "paper"})
+    assert cfg["model"]["proxy_anchor"] == "none" and cfg["infer"]["strength"] == 1.0
+    assert cfg["train"]["timesteps"] == "all" and cfg["select"]["val_scenes"] == 0
+    assert cfg["baselines"]["regressor_steps"] == 0 and not cfg["baselines"]["affine_colour"]
+    from lightcrafter.refiner.schedule import train_timestep_range
+
+    assert train_timestep_range(cfg) == (0, 999)
+
+
+def test_strength_one_starts_from_pure_noise_as_before():
+    cfg = resolve_config({**SMALL, "infer": {"num_steps": 5}})
+    zp = torch.randn(1, 2, 16, 2, 3)
+    noise = torch.randn_like(zp)
+    m = FirstInput()
+    sample_latent(m, zp, cfg, strength=1.0, guidance_scale=1.0, init_noise=noise)
+    assert torch.equal(m.seen[0][0], noise) and m.seen[0][1] == 999 and len(m.seen) == 5
+
+
+def test_sdedit_start_is_the_noised_proxy_at_the_first_kept_step():
+    cfg = resolve_config({**SMALL, "infer": {"num_steps": 10}})
+    sched = build_scheduler(cfg)
+    sched.set_timesteps(10)
+    kept = kept_timesteps(sched.timesteps, 10, 0.35)
+    assert len(kept) == 3 and torch.equal(kept, sched.timesteps[7:])  # int(10 * 0.35) = 3 steps
+    zp = torch.randn(1, 2, 16, 2, 3)
+    noise = torch.randn_like(zp)
+    m = FirstInput()
+    sample_latent(m, zp, cfg, strength=0.35, guidance_scale=1.0, init_noise=noise)
+    t0 = int(kept[0])
+    ab = sched.alphas_cumprod[t0]
+    assert m.seen[0][1] == t0 and len(m.seen) == 3
+    assert torch.allclose(m.seen[0][0], ab.sqrt() * zp + (1 - ab).sqrt() * noise, atol=1e-6)
+
+
+def test_strength_zero_returns_the_proxy_through_the_autoencoder():
+    from lightcrafter.refiner import refine_video
+    from lightcrafter.refiner.toy import toy_pair
+
+    cfg = resolve_config({"model": {"ae_coeffs": [32, 8, 8], "proxy_anchor": "none"}})
+    model = Refiner(cfg).eval()  # a random-init, un-anchored model: strength 0 must not call it
+    proxy = toy_pair(0, num_frames=5)["proxy"][None]
+    out = refine_video(model, proxy, cfg, strength=0.0)
+    assert torch.allclose(out, model.ae.decode(model.ae.encode(proxy)).clamp(-1, 1))
+
+
+def test_training_timesteps_cover_what_sampling_visits():
+    from lightcrafter.refiner.schedule import train_timestep_range
+
+    cfg = resolve_config({"infer": {"num_steps": 25}, "select": {"strengths": [0.1, 0.5]}})
+    assert train_timestep_range(cfg) == (39, 479)  # trailing: 999, 959, ..., 39; 12 steps kept at 0.5
+    off = resolve_config({"infer": {"num_steps": 25, "strength": 0.2}, "select": {"val_scenes": 0}})
+    assert train_timestep_range(off) == (39, 199)
+
+
+def test_strength_out_of_range_rejected():
+    with pytest.raises(ValueError, match="strength"):
+        resolve_config({"infer": {"strength": 1.5}})
+    with pytest.raises(ValueError, match="proxy_anchor"):
+        resolve_config({"model": {"proxy_anchor": "eps"}})
+
+
+def _records(scenes, split="train", per=2):
+    return [{"pair_id": f"{s}_t{i}", "scene_id": s, "split": split} for s in scenes for i in range(per)]
+
+
+def test_validation_is_carved_by_whole_scene_deterministically():
+    from lightcrafter.refiner.validation import carve_validation
+
+    recs = _records([f"s{i:04d}" for i in range(8)])
+    a = carve_validation(recs, 0.25, seed=0)
+    assert carve_validation(list(reversed(recs)), 0.25, seed=0)["val_groups"] == a["val_groups"]  # order-free
+    assert len(a["val_groups"]) == 2 and len(a["val"]) == 4 and len(a["fit"]) == 12
+    assert not {p.split("_")[0] for p in a["fit"]} & set(a["val_groups"])  # no scene on both sides
+    assert len(carve_validation(recs, 3, seed=0)["val_groups"]) == 3
+    # adding scenes can push an old scene out of validation, never pull another old one in
+    for n in (1, 2, 3):
+        old = set(carve_validation(recs, n, seed=0)["val_groups"])
+        new = set(carve_validation(recs + _records(["s0100", "s0101", "s0102"]), n, seed=0)["val_groups"])
+        assert new - {"s0100", "s0101", "s0102"} <= old
+    seeds = {tuple(carve_validation(recs, 2, seed=s)["val_groups"]) for s in range(6)}
+    assert len(seeds) > 1  # the seed is an input of the draw
+
+
+def test_validation_needs_two_scenes_and_never_takes_test():
+    from lightcrafter.refiner.validation import carve_validation
+
+    single = carve_validation(_records(["s0000"]), 0.25)
+    assert single["val"] == [] and "skipped" in single["note"]
+    with pytest.raises(ValueError, match="train split"):
+        carve_validation(_records(["s0000"]) + _records(["s0001"], split="test"), 1)
+    real = [{"pair_id": f"r{i}", "clip_id": f"c{i // 2}", "split": "train"} for i in range(6)]
+    c = carve_validation(real, 1)
+    assert len(c["val"]) == 2 and c["val"][0][1:] in ("0", "2", "4")  # both pairs of one clip
+
+
+def test_affine_colour_fit_recovers_a_known_map():
+    from lightcrafter.refiner.baselines import apply_affine_colour, fit_affine_colour
+
+    g = torch.Generator().manual_seed(0)
+    items = []
+    for _ in range(3):
+        p = torch.rand(3, 5, 8, 8, generator=g) * 1.2 - 0.6
+        t = p * torch.tensor([0.8, 1.1, 0.9]).view(3, 1, 1, 1) + torch.tensor([0.1, -0.05, 0.2]).view(3, 1, 1, 1)
+        items.append({"proxy": p, "target": t})
+    fit = fit_affine_colour(items)
+    assert fit["gain"] == pytest.approx([0.8, 1.1, 0.9], abs=1e-6)
+    assert fit["offset"] == pytest.approx([0.1, -0.05, 0.2], abs=1e-6)
+    assert torch.allclose(apply_affine_colour(fit, items[0]["proxy"]), items[0]["target"].clamp(-1, 1), atol=1e-5)
+
+
+def test_bootstrap_interval():
+    from lightcrafter.refiner.scoring import bootstrap_mean_ci
+
+    ci = bootstrap_mean_ci([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert ci["lo"] < ci["mean"] == 3.0 < ci["hi"] and 1.0 <= ci["lo"] and ci["hi"] <= 5.0
+    assert bootstrap_mean_ci([0.5] * 4) == {**bootstrap_mean_ci([0.5] * 4), "lo": 0.5, "hi": 0.5}
+    assert bootstrap_mean_ci([1.0, -1.0] * 10, seed=3) == bootstrap_mean_ci([1.0, -1.0] * 10, seed=3)
+
+
+def test_frame_strip_layout():
+    import numpy as np
+
+    from lightcrafter.refiner.strip import LABEL_PX, frame_strip, strip_frames
+
+    assert strip_frames(9) == [0, 4, 8] and strip_frames(2) == [0, 1]
+    v = np.random.default_rng(0).random((9, 8, 12, 3))
+    img = frame_strip([("proxy", v), ("refined", v), ("target", v)], scale=2, gap=2)
+    assert img.shape == (LABEL_PX + 3 * 16 + 2 * 2, 3 * 24 + 2 * 2, 3) and img.dtype == np.uint8
+    with pytest.raises(ValueError, match="column"):
+        frame_strip([("a", v), ("b", v[:, :4])])
+
+
+def test_regression_objective_trains_and_starts_at_the_proxy(tmp_path):
+    from lightcrafter.refiner import train
+    from lightcrafter.refiner.baselines import regress_video
+    from lightcrafter.refiner.toy import ToyDataset
+
+    cfg = resolve_config({**SMALL, "train": {"max_steps": 3, "checkpoint_every": 100}})
+    ds = ToyDataset(2)
+    model = Refiner(cfg).eval()
+    proxy = ds[0]["proxy"][None]
+    assert torch.allclose(regress_video(model, proxy), model.ae.decode(model.ae.encode(proxy)).clamp(-1, 1), atol=1e-5)
+    res = train(cfg, ds, tmp_path, objective="regression", snapshot_steps=[2], progress=False)
+    assert res["step"] == 3 and all(torch.isfinite(torch.tensor(res["losses"])))
+    assert (tmp_path / "candidates/step_0000002.pt").is_file() and (tmp_path / "model.pt").is_file()
+
+
+def test_dropped_proxy_keeps_the_anchor_in_training():
+    """Proxy dropout zeroes the network's proxy input only; the anchor stays on the proxy, as in CFG's
+    unconditional branch at inference (an untrained model's loss is the same with or without dropout)."""
+    from lightcrafter.refiner.training import training_loss
+
+    torch.manual_seed(0)
+    cfg = resolve_config(SMALL)
+    model = Refiner(cfg)
+    sched = build_scheduler(cfg, "ddim")
+    x0, zp = torch.randn(1, 2, model.latent_channels, 2, 4), torch.randn(1, 2, model.latent_channels, 2, 4)
+    noise, t = torch.randn_like(x0), torch.tensor([300])
+    kept = training_loss(model, sched, x0, zp, t, noise, anchor=zp)
+    dropped = training_loss(model, sched, x0, torch.zeros_like(zp), t, noise, anchor=zp)
+    assert torch.allclose(kept, dropped)
+    assert not torch.allclose(training_loss(model, sched, x0, torch.zeros_like(zp), t, noise), kept)
+
+
+def test_anchor_map_starts_at_identity_trains_and_round_trips(tmp_path):
+    from lightcrafter.refiner import load_model, train
+    from lightcrafter.refiner.toy import ToyDataset
+
+    cfg = resolve_config({**SMALL, "train": {"max_steps": 3, "checkpoint_every": 100, "anchor_lr": 0.05}})
+    assert cfg["model"]["anchor_affine"]
+    fresh = Refiner(cfg)
+    assert torch.equal(fresh.anchor_map(torch.ones(1, 1, fresh.latent_channels, 1, 1)),
+                       torch.ones(1, 1, fresh.latent_channels, 1, 1))
+    train(cfg, ToyDataset(2), tmp_path, progress=False)
+    m = load_model(tmp_path / "model.pt")
+    assert float(m.anchor_map.gain.detach().abs().max()) > 0.01  # moved at its own learning rate
+    st = torch.load(tmp_path / "model.pt", weights_only=False)
+    assert torch.equal(st["anchor_map"]["gain"], m.anchor_map.gain.detach())
