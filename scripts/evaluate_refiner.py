@@ -1,16 +1,25 @@
 #!/usr/bin/env python
-"""Refined video, its baselines and the PBR proxy alone, all against the target, on held-out pairs
-(thin entry point).
+"""Score every method on a held-out benchmark against its targets (thin entry point over
+lightcrafter.evaluation).
 
-  evaluate_refiner.py --pairs PAIRS.jsonl --refined OUTDIR/manifest.json --out results/eval/{variant}/metrics.json
+  evaluate_refiner.py --pairs results/benchmarks/synthetic/pairs.jsonl --refined OUTDIR/manifest.json \
+      --out results/eval/{variant}/synthetic/metrics.json [--lpips-weights DIR] [--clip-weights DIR] \
+      [--external-dir DIR]
 
-Methods: ``proxy`` (the PBR proxy alone), ``refined`` (the refiner with the settings chosen on
-validation), and every baseline the inference manifest lists (``regressor``: the same network as a
-one-step deterministic regressor; ``affine_colour``: per-channel affine colour fit on the training
-pairs). Metrics on display values in [0, 1] (io.linear_to_display, same exposure for all): per-frame
-PSNR (dB) and SSIM averaged per video, then over pairs; mean temporal difference. ``vs_proxy``: per
-method, the mean over pairs of (method - proxy) with a 95% percentile-bootstrap interval over pairs.
-LPIPS/CLIP only with local weights (--lpips-weights / --clip-weights), else reported as skipped.
+Methods: ``proxy`` (the PBR proxy from Phi buffers), ``oracle_proxy`` (R on ground-truth buffers, where the
+benchmark has it), ``refined`` (the refiner with the settings chosen on validation), the baselines the
+inference manifest lists (``regressor``, ``affine_colour``), and any external method whose outputs are
+dropped into ``--external-dir`` in the benchmark's layout::
+
+    {external_dir}/{method}/{pair_id}/{frame:04d}.exr     linear RGB, the target's size and frame count
+    (or .png, display sRGB 8-bit)
+
+Metrics (lightcrafter.evaluation, display values in [0, 1], exposure --exposure-ev for all): PSNR, SSIM and
+LPIPS frame-wise, averaged per clip; Warp-SSIM (DIS flow of the target applied to the method's video,
+occlusions masked); T-CLIP. LPIPS and T-CLIP load weights only from the given local folders and are
+reported "not computed: <reason>" otherwise. Per method: the mean over clips with a 95 % percentile-
+bootstrap interval over clips (``ci``), and (``vs_proxy``) the paired difference to the proxy with its
+interval.
 """
 
 import argparse
@@ -21,26 +30,30 @@ import numpy as np
 
 import _cli  # noqa: F401  (puts the repository on sys.path)
 
-from lightcrafter.io import DataError, read_json, write_json
-from lightcrafter.metrics import perceptual_metrics, temporal_difference, video_psnr_db, video_ssim
+from lightcrafter import evaluation as ev
+from lightcrafter.io import DataError, linear_to_display, read_json, read_rgb_exr, write_json
 from lightcrafter.refiner.data import PairsDataset, load_frames, to_display_frames
-from lightcrafter.refiner.scoring import bootstrap_mean_ci
 
-METRICS = ("psnr_db", "ssim")
-
-
-def _disp(t):  # (3, N, H, W) in [-1, 1] -> (N, H, W, 3) in [0, 1]
-    return to_display_frames(t)
+METRICS = ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim")
 
 
-def _mean_or_none(values):
-    values = [v for v in values if v is not None]
-    return float(np.mean(values)) if values else None
+def _folder_video(folder: Path, n: int, exposure_ev: float) -> np.ndarray | None:
+    """(N, H, W, 3) display video from linear EXRs (or 8-bit PNGs) in ``folder``; None when absent."""
+    if (folder / "0000.exr").is_file():
+        return np.stack([linear_to_display(read_rgb_exr(folder / f"{i:04d}.exr"), exposure_ev) for i in range(n)])
+    if (folder / "0000.png").is_file():
+        import imageio.v3 as iio
+
+        return np.stack([np.asarray(iio.imread(folder / f"{i:04d}.png"))[..., :3] / 255.0 for i in range(n)]).astype(np.float32)
+    return None
 
 
-def _scores(video, tgt) -> dict:
-    return {"psnr_db": video_psnr_db(video, tgt), "ssim": video_ssim(video, tgt),
-            "temporal_difference": float(temporal_difference(video).mean()) if len(video) > 1 else 0.0}
+def _ci(values) -> list | None:
+    v = [x for x in values if x is not None and np.isfinite(x)]
+    if len(v) < 2:
+        return None
+    c = ev.bootstrap_ci(v)
+    return [c["low"], c["high"]]
 
 
 def main() -> int:
@@ -51,50 +64,86 @@ def main() -> int:
     ap.add_argument("--exposure-ev", type=float, default=0.0)
     ap.add_argument("--lpips-weights", default=None)
     ap.add_argument("--clip-weights", default=None)
+    ap.add_argument("--external-dir", default=None)
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
+    root = Path.cwd()
     try:
         ds = PairsDataset(a.pairs, a.split, a.exposure_ev, cache=False)
         manifest = read_json(a.refined)
         refined = {e["pair_id"]: e for e in manifest["pairs"]}
-        rows, skipped, methods = [], [], ["proxy", "refined"]
+        externals = sorted(p.name for p in Path(a.external_dir).iterdir() if p.is_dir()) if a.external_dir and \
+            Path(a.external_dir).is_dir() else []
+        embedder = ev.load_clip_embedder(a.clip_weights)
+        lpips_model = ev.load_lpips(a.lpips_weights)
+        rows, methods, not_computed = [], ["proxy"], {}
         for i in range(len(ds)):
-            item = ds[i]
+            item, rec = ds[i], ds.records[i]
             e = refined.get(item["pair_id"])
             if e is None:
                 raise DataError(f"{a.refined}: no refined video for pair {item['pair_id']}; rerun inference")
-            tgt, prx = _disp(item["target"]), _disp(item["proxy"])
-            ref = _disp(load_frames(Path(e["frames"]), e["num_frames"], a.exposure_ev))
-            _, skipped = perceptual_metrics(ref, tgt, a.lpips_weights, a.clip_weights)
-            row = {"pair_id": item["pair_id"], "refined": _scores(ref, tgt), "proxy": _scores(prx, tgt),
-                   "target_temporal_difference": float(temporal_difference(tgt).mean()) if len(tgt) > 1 else 0.0,
-                   "ae_round_trip_psnr_db": e.get("ae_round_trip_psnr_db"),
-                   "ae_round_trip_proxy_psnr_db": e.get("ae_round_trip_proxy_psnr_db")}
+            n = int(rec["num_frames"])
+            tgt = to_display_frames(item["target"])
+            videos = {"proxy": to_display_frames(item["proxy"])}
+            if rec.get("oracle_proxy"):
+                videos["oracle_proxy"] = _folder_video(root / rec["oracle_proxy"], n, a.exposure_ev)
+            videos["refined"] = to_display_frames(load_frames(Path(e["frames"]), e["num_frames"], a.exposure_ev))
             for name, b in sorted((e.get("baselines") or {}).items()):
-                row[name] = _scores(_disp(load_frames(Path(b["frames"]), b["num_frames"], a.exposure_ev)), tgt)
+                videos[name] = to_display_frames(load_frames(Path(b["frames"]), b["num_frames"], a.exposure_ev))
+            for name in externals:
+                v = _folder_video(Path(a.external_dir) / name / item["pair_id"], n, a.exposure_ev)
+                if v is not None:
+                    videos[f"external:{name}"] = v
+            flows = ev.compute_flows(tgt) if n > 1 else None
+            row = {"pair_id": item["pair_id"], "scene_id": rec.get("scene_id"), "clip_id": rec.get("clip_id"),
+                   "target_light": rec.get("target_light"), "motion": rec.get("motion"),
+                   "ae_round_trip_psnr_db": e.get("ae_round_trip_psnr_db")}
+            for name, v in videos.items():
+                if v is None:
+                    continue
+                if v.shape != tgt.shape:
+                    raise DataError(f"pair {item['pair_id']}: method {name} has {v.shape}, target {tgt.shape}; "
+                                    "outputs must match the target's frames and size")
+                res = {"psnr_db": ev.framewise_psnr(v, tgt), "ssim": ev.framewise_ssim(v, tgt),
+                       "lpips": ev.lpips_video(v, tgt, model=lpips_model) if not isinstance(lpips_model, str)
+                       else ev.MetricResult("lpips", None, None, f"not computed: {lpips_model}"),
+                       "t_clip": ev.t_clip(v, embedder=embedder) if not isinstance(embedder, str)
+                       else ev.MetricResult("t_clip", None, None, f"not computed: {embedder}"),
+                       "warp_ssim": ev.warp_ssim(v, flows=flows) if flows is not None
+                       else ev.MetricResult("warp_ssim", None, None, "not computed: a one-frame clip has no motion")}
+                row[name] = {k: r.value for k, r in res.items()}
+                for k, r in res.items():
+                    if r.value is None:
+                        not_computed[k] = r.status.removeprefix("not computed: ")
                 if name not in methods:
                     methods.append(name)
             rows.append(row)
-        missing = [m for m in methods if any(m not in r for r in rows)]
-        if missing:
-            raise DataError(f"{a.refined}: baselines {missing} exist for some pairs only; rerun inference")
-    except DataError as exc:
+    except (DataError, ValueError) as exc:
         print(f"evaluate_refiner: {exc}", file=sys.stderr)
         return 1
-    summary = {m: {k: float(np.mean([r[m][k] for r in rows])) if rows else None for k in (*METRICS, "temporal_difference")}
-               for m in methods}
-    vs_proxy = {}
-    if rows:
-        for m in methods:
-            if m != "proxy":
-                vs_proxy[m] = {k: bootstrap_mean_ci([r[m][k] - r["proxy"][k] for r in rows]) for k in METRICS}
-    write_json(a.out, {"split": a.split, "num_pairs": len(rows), "display": {"exposure_ev": a.exposure_ev},
-                       "methods": methods, "mean": summary, "vs_proxy": vs_proxy, "pairs": rows,
+    mean, ci, vs_proxy = {}, {}, {}
+    for m in methods:
+        vals = {k: [r[m][k] for r in rows if m in r and r[m].get(k) is not None] for k in METRICS}
+        mean[m] = {k: (float(np.mean(v)) if v else None) for k, v in vals.items()}
+        ci[m] = {k: _ci(v) for k, v in vals.items()}
+        if m != "proxy":
+            d = {}
+            for k in METRICS:
+                both = [(r[m][k], r["proxy"][k]) for r in rows if m in r and r[m].get(k) is not None
+                        and r["proxy"].get(k) is not None]
+                if len(both) >= 2:
+                    c = ev.paired_bootstrap_ci([x for x, _ in both], [y for _, y in both])
+                    d[k] = {"mean": c["mean"], "lo": c["low"], "hi": c["high"], "n": c["n"]}
+                elif both:
+                    d[k] = {"mean": both[0][0] - both[0][1], "lo": None, "hi": None, "n": 1}
+            vs_proxy[m] = d
+    write_json(a.out, {"benchmark": Path(a.pairs).parent.name, "split": a.split, "num_pairs": len(rows),
+                       "display": {"exposure_ev": a.exposure_ev}, "methods": methods, "metrics": list(METRICS),
+                       "mean": mean, "ci": ci, "vs_proxy": vs_proxy, "not_computed": not_computed, "pairs": rows,
                        "inference": {"infer": manifest.get("infer"), "selection": manifest.get("selection")},
-                       "skipped_metrics": skipped,
-                       "ae_round_trip_psnr_db_mean": _mean_or_none([r["ae_round_trip_psnr_db"] for r in rows]),
-                       "ae_round_trip_proxy_psnr_db_mean": _mean_or_none([r["ae_round_trip_proxy_psnr_db"] for r in rows])})
-    line = "; ".join(f"{m} {summary[m]['psnr_db']:.2f} dB / SSIM {summary[m]['ssim']:.3f}" for m in methods) if rows else ""
+                       "external_methods": externals})
+    line = "; ".join(f"{m} {mean[m]['psnr_db']:.2f} dB / SSIM {mean[m]['ssim']:.3f}" for m in methods
+                     if mean[m]["psnr_db"] is not None)
     print(f"evaluate_refiner: {len(rows)} pairs; {line}")
     return 0
 

@@ -404,3 +404,18 @@ def extra_outputs():
     if config.get("edits", {}).get("enabled", True):
         out += [L.edit_refined(k) + ".json" for k in EDIT_KINDS]
     return out
+
+
+def evaluation_args(wildcards):
+    """Local weights of LPIPS and CLIP and the external methods' folder (config evaluation), if set."""
+    e = config.get("evaluation", {})
+    args = []
+    for key, flag in (
+        ("lpips_weights", "--lpips-weights"),
+        ("clip_weights", "--clip-weights"),
+    ):
+        if e.get(key):
+            args += [flag, e[key]]
+    if e.get("external_dir"):
+        args += ["--external-dir", str(Path(e["external_dir"]) / wildcards.bench)]
+    return " ".join(args)

@@ -71,7 +71,8 @@ rule evaluate_refiner:
     params:
         script=script_path("evaluate_refiner.py"),
         exposure=config.get("refiner", {}).get("data", {}).get("exposure_ev", 0.0),
+        weights=evaluation_args,
     shell:
         "python {params.script} --pairs {input.pairs} "
-        "--refined {input.refined} --split test --exposure-ev {params.exposure} "
+        "--refined {input.refined} --split test --exposure-ev {params.exposure} {params.weights} "
         "--out {output.metrics} > {log} 2>&1"
