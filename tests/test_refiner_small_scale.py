@@ -232,3 +232,82 @@ def test_anchor_map_starts_at_identity_trains_and_round_trips(tmp_path):
     assert float(m.anchor_map.gain.detach().abs().max()) > 0.01  # moved at its own learning rate
     st = torch.load(tmp_path / "model.pt", weights_only=False)
     assert torch.equal(st["anchor_map"]["gain"], m.anchor_map.gain.detach())
+
+
+@pytest.mark.parametrize("frames,height,width", [(17, 112, 160), (17, 96, 128)])
+def test_larger_clips_refine_to_the_proxy_when_untrained(frames, height, width):
+    """Any size the autoencoder accepts (4k+1 frames, multiples of 16): tiled SDEdit sampling runs and an
+    untrained anchored refiner returns the proxy through the autoencoder."""
+    from lightcrafter.refiner import refine_video
+    from lightcrafter.refiner.toy import toy_pair
+
+    cfg = resolve_config({"model": {"ae_coeffs": [16, 4, 4]}, "infer": {"num_steps": 4, "strength": 0.5}})
+    model = Refiner(cfg).eval()
+    proxy = toy_pair(3, num_frames=frames, height=height, width=width)["proxy"][None]
+    out = refine_video(model, proxy, cfg, generator=torch.Generator().manual_seed(0), guidance_scale=2.0)
+    assert out.shape == proxy.shape
+    assert torch.allclose(out, model.ae.decode(model.ae.encode(proxy)).clamp(-1, 1), atol=1e-4)
+
+
+def _toy_manifest(folder, scenes):
+    from lightcrafter.io import display_to_linear, write_jsonl, write_rgb_exr
+    from lightcrafter.refiner.toy import toy_pair
+
+    recs = []
+    for i, scene in enumerate(scenes):
+        p = toy_pair(i, num_frames=5)
+        for key in ("proxy", "target"):
+            disp = ((p[key].numpy().transpose(1, 2, 3, 0) + 1) / 2).clip(0, 1)
+            for f, frame in enumerate(disp):
+                write_rgb_exr(folder / f"p{i}/{key}/{f:04d}.exr", display_to_linear(frame))
+        recs.append({"pair_id": f"p{i}", "scene_id": scene, "proxy": str(folder / f"p{i}/proxy"),
+                     "target": str(folder / f"p{i}/target"), "num_frames": 5, "width": 48, "height": 32,
+                     "split": "train"})
+    write_jsonl(folder / "pairs.jsonl", recs)
+    return folder / "pairs.jsonl"
+
+
+def test_fit_without_enough_scenes_skips_selection_and_keeps_the_config(tmp_path):
+    """One train-split scene: nothing to validate on; the configured infer settings are stored."""
+    from lightcrafter.refiner import load_model
+    from lightcrafter.refiner.fit import fit_refiner
+
+    pairs = _toy_manifest(tmp_path, ["s0", "s0"])
+    cfg = resolve_config({**SMALL, "train": {"max_steps": 1, "grad_accum": 1}, "infer": {"strength": 0.2},
+                          "baselines": {"regressor_steps": 1}})
+    summary = fit_refiner(cfg, pairs, tmp_path / "m", progress=False)
+    assert summary["selection"]["chosen"] is None and "skipped" in summary["selection"]["note"]
+    assert summary["fit_pairs"] == ["p0", "p1"] and summary["val_pairs"] == []
+    m = load_model(tmp_path / "m/model.pt")
+    assert m.cfg["infer"]["strength"] == 0.2 and m.selection["chosen"] is None
+    assert "val" not in summary["baselines"]["regressor"]
+
+
+def test_selection_rerun_with_a_new_candidate_step_skips_it(tmp_path):
+    """A finished run resumed with an extra select.checkpoints entry has no weights for it: skipped, logged."""
+    import logging
+
+    from lightcrafter.refiner.fit import fit_refiner
+
+    pairs = _toy_manifest(tmp_path, ["s0", "s1"])
+    base = {**SMALL, "train": {"max_steps": 2, "grad_accum": 1}, "infer": {"num_steps": 4},
+            "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0]},
+            "baselines": {"regressor_steps": 0, "affine_colour": False}}
+    first = fit_refiner(resolve_config(base), pairs, tmp_path / "m", progress=False)
+    assert first["train"]["candidate_steps"] == [2] and len(first["selection"]["table"]) == 1
+    records = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            records.append(record.getMessage())
+
+    log = logging.getLogger("test_refiner_small_scale.rerun")
+    log.addHandler(Keep())
+    log.setLevel(logging.INFO)
+    again = fit_refiner(resolve_config({**base, "select": {**base["select"], "checkpoints": [1]}}), pairs,
+                        tmp_path / "m", progress=False, log=log)
+    assert again["train"]["candidate_steps"] == [2] and any("candidate step 1" in m for m in records)
+    def scores(table):  # everything but the timings
+        return [(r["step"], r["strength"], r["guidance_scale"], r["psnr_db"], r["ssim"]) for r in table]
+
+    assert scores(again["selection"]["table"]) == scores(first["selection"]["table"])  # same weights, same scores

@@ -53,3 +53,13 @@ def test_target_latent_cache_is_exact():
     v = ToyDataset(1)[0]["target"]
     assert torch.equal(cache.get("p", v), ae.encode(v[None]))
     assert cache.get("p", v) is cache.get("p", v)
+
+
+def test_checkpoint_past_max_steps_is_not_reused(tmp_path):
+    """Lowering train.max_steps after a finished run retrains instead of shipping the longer run's weights."""
+    train(resolve_config(CFG), ToyDataset(2), tmp_path, progress=False)
+    short = resolve_config({**CFG, "train": {**CFG["train"], "max_steps": 3}})
+    fresh = train(short, ToyDataset(2), tmp_path / "ref", progress=False)["losses"]
+    again = train(short, ToyDataset(2), tmp_path, progress=False)
+    assert again["step"] == 3 and again["losses"] == fresh
+    assert "past train.max_steps" in (tmp_path / "train.log").read_text()

@@ -38,7 +38,7 @@ from .data import PairsDataset, read_pairs
 from .model import Refiner
 from .sampler import refine_video
 from .scoring import clip_scores
-from .training import load_model, save_checkpoint, snapshot_path, train
+from .training import load_model, run_fingerprint, save_checkpoint, snapshot_path, train
 from .validation import carve_validation, pair_group
 
 DIFFUSION_FINAL = "diffusion.pt"
@@ -116,9 +116,16 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     train_seconds = time.perf_counter() - t0
     final = torch.load(out_dir / DIFFUSION_FINAL, map_location="cpu", weights_only=False)
 
+    fingerprint = run_fingerprint(cfg, fit_ds)
+    for step in [s for s in steps if s != max_steps]:
+        p = snapshot_path(out_dir, step)
+        if not p.is_file() or torch.load(p, map_location="cpu", weights_only=False).get("fingerprint") != fingerprint:
+            log.info("candidate step %d was not saved by this training run (a finished run resumed with new "
+                     "select.checkpoints?); skipped -- delete %s to retrain with it", step, out_dir)
+            steps.remove(step)
     summary: dict = {"carve": carve, "val_pairs": val_ds.pair_ids, "fit_pairs": fit_ds.pair_ids,
                      "train": {"steps": res["step"], "seconds_per_step": res["seconds_per_step"],
-                               "seconds_this_run": train_seconds}}
+                               "seconds_this_run": train_seconds, "candidate_steps": list(steps)}}
     weight_keys = ("transformer", "anchor_map")
     chosen_sd = {k: final[k] for k in weight_keys if k in final}
     t0 = time.perf_counter()

@@ -196,6 +196,11 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         for old in [*(out_dir / CKPT_DIR).glob("*"), *(out_dir / CANDIDATES).glob("*")]:
             old.unlink()
         st = None
+    if st is not None and st["step"] > tr["max_steps"]:
+        log.info("checkpoint %s is past train.max_steps=%d; training from scratch", ckpt.name, tr["max_steps"])
+        for old in (out_dir / CKPT_DIR).glob("*"):
+            old.unlink()
+        st = None
     if st is None:  # snapshots of an earlier (killed or finished) run with other settings are stale
         for old in (out_dir / CANDIDATES).glob("*"):
             old.unlink()
