@@ -137,7 +137,9 @@ def main() -> int:
                 elif both:
                     d[k] = {"mean": both[0][0] - both[0][1], "lo": None, "hi": None, "n": 1}
             vs_proxy[m] = d
+    ae = [r["ae_round_trip_psnr_db"] for r in rows if r.get("ae_round_trip_psnr_db") is not None]
     write_json(a.out, {"benchmark": Path(a.pairs).parent.name, "split": a.split, "num_pairs": len(rows),
+                       "ae_round_trip_psnr_db_mean": float(np.mean(ae)) if ae else None,
                        "display": {"exposure_ev": a.exposure_ev}, "methods": methods, "metrics": list(METRICS),
                        "mean": mean, "ci": ci, "vs_proxy": vs_proxy, "not_computed": not_computed, "pairs": rows,
                        "inference": {"infer": manifest.get("infer"), "selection": manifest.get("selection")},

@@ -50,6 +50,9 @@ def _run_until(wd: Path, point: str | None, timeout_s: float = 2400) -> tuple[st
     """Run the default target; SIGKILL the process group as soon as ``point`` is running. Returns
     ('killed' | 'finished' | 'failed: ...', seconds)."""
     cmd = [sys.executable, "-m", "snakemake", "--cores", "2", "-d", str(wd), "--configfile", CI_CONFIG]
+    if (wd / ".snakemake" / "locks").is_dir() and any((wd / ".snakemake" / "locks").iterdir()):
+        # a SIGKILLed Snakemake cannot release its lock; the documented recovery is --unlock, then the same command
+        subprocess.run(cmd + ["--unlock"], cwd=REPO, env=venv_env(), check=True, capture_output=True)
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, cwd=REPO, env=venv_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                          start_new_session=True)

@@ -62,8 +62,9 @@ def test_motion_configs_and_leave_out_flags(default_config):
     assert seen == set(scenes.MOTIONS)
 
 
-def test_orbit_is_one_degree_per_frame_and_oscillation_is_not_monotonic(default_config):
-    cfg = _cfg(default_config, count=40, num_frames=25, oscillation_prob=0.5)
+@pytest.mark.parametrize("deg_per_frame", [1.0, 2.0])
+def test_orbit_steps_the_configured_degrees_per_frame_and_oscillation_is_not_monotonic(default_config, deg_per_frame):
+    cfg = _cfg(default_config, count=40, num_frames=25, oscillation_prob=0.5, orbit_deg_per_frame=deg_per_frame)
     monotonic = oscillating = 0
     for i in range(40):
         spec = _spec(cfg, i)
@@ -80,7 +81,7 @@ def test_orbit_is_one_degree_per_frame_and_oscillation_is_not_monotonic(default_
                 assert (steps > 0).any() and (steps < 0).any(), "oscillating trajectory must turn back"
                 oscillating += 1
             else:
-                assert np.allclose(np.abs(steps), 1.0, atol=1e-3), steps
+                assert np.allclose(np.abs(steps), deg_per_frame, atol=1e-3), steps
                 monotonic += 1
             # Start azimuth lies in the planned quadrant.
             q = (math.degrees(az[0]) % 360) // 90
