@@ -167,7 +167,8 @@ def main() -> int:
                     anchor_only[name] = mean_scores(score_method(
                         refine_fn(bare, bare.cfg, chosen["strength"], chosen["guidance_scale"]), sets[name]))
                     anchor_only[name + "_refined"] = mean_scores(score_method(
-                        refine_fn(model, model.cfg, chosen["strength"], chosen["guidance_scale"]), sets[name]))
+                        refine_fn(model, model.cfg, chosen["strength"], chosen["guidance_scale"],
+                                  residual_scale=1.0), sets[name]))
         for meth, res in [("refined", sel), *base.items()]:
             for rp, rr in zip(proxy_test["pairs"], res["pairs"]):
                 for k in ("psnr_db", "ssim"):

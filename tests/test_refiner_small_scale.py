@@ -41,6 +41,26 @@ def test_untrained_anchored_model_returns_the_proxy(sampler):
             assert torch.allclose(z, zp, atol=1e-5), (strength, gs)
 
 
+def test_residual_scale_zero_returns_the_learned_anchor_without_the_transformer():
+    """infer.residual_scale 0: the output is the anchor map of the proxy whatever the transformer learned."""
+    torch.manual_seed(0)
+    cfg = resolve_config({**SMALL, "infer": {"num_steps": 8}})
+    model = Refiner(cfg).eval()
+    with torch.no_grad():
+        model.anchor_map.gain.uniform_(-0.3, 0.3)
+        model.anchor_map.bias.uniform_(-0.2, 0.2)
+        for prm in model.transformer.proj_out.parameters():  # a transformer that would change the output
+            prm.normal_(0, 0.5)
+    zp = torch.randn(1, 3, model.latent_channels, 4, 6)
+    want = model.anchor_map(zp)
+    calls = []
+    model.transformer.register_forward_hook(lambda *a: calls.append(1))
+    z = sample_latent(model, zp, cfg, strength=0.5, residual_scale=0.0, generator=torch.Generator().manual_seed(1))
+    assert torch.allclose(z, want, atol=1e-4) and not calls
+    full = sample_latent(model, zp, cfg, strength=0.5, generator=torch.Generator().manual_seed(1))
+    assert calls and not torch.allclose(full, want, atol=1e-2)
+
+
 def test_v_anchor_predicts_the_proxy_as_x0():
     torch.manual_seed(0)
     for mode in ("x0", "v"):
@@ -294,7 +314,7 @@ def test_selection_rerun_with_a_new_candidate_step_skips_it(tmp_path):
             "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0]},
             "baselines": {"regressor_steps": 0, "affine_colour": False}}
     first = fit_refiner(resolve_config(base), pairs, tmp_path / "m", progress=False)
-    assert first["train"]["candidate_steps"] == [2] and len(first["selection"]["table"]) == 1
+    assert first["train"]["candidate_steps"] == [2] and len(first["selection"]["table"]) == 2  # residual 1 and 0
     records = []
 
     class Keep(logging.Handler):

@@ -95,6 +95,10 @@ _BASE: dict = {
         "num_steps": 50,
         "strength": 1.0,  # SDEdit: 1 = start from pure noise (paper); s < 1 starts from the noised proxy
         "guidance_scale": 6.0,
+        # weight of the transformer's correction F on top of the proxy anchor (model.proxy_anchor != none):
+        # 1 = the trained model; 0 = the anchor alone (the learned latent map of the proxy, no transformer
+        # call). Chosen on validation through select.residual_scales; ignored without an anchor.
+        "residual_scale": 1.0,
         "num_samples": 1,  # refined = mean of this many samples (different noise); 1 = one sample (paper)
         "sampler": "ddim",  # ddim | dpm (CogVideoXDPMScheduler: stochastic, carries previous x0)
         "window": 3,  # latent frames per tile (paper: 13)
@@ -114,6 +118,7 @@ _BASE: dict = {
         "checkpoints": [],  # optimizer steps whose weights are candidates (the last step always is)
         "strengths": [1.0],
         "guidance_scales": [6.0],
+        "residual_scales": [1.0],  # candidate infer.residual_scale values (only with a proxy anchor)
         "metric": "psnr_db",  # psnr_db | ssim: mean over validation clips, higher is better
     },
     # --- baselines trained and evaluated beside the refiner (same data, same network)
@@ -132,7 +137,7 @@ TINY_SMALL_SCALE: dict = {
     "train": {"lr": 3e-4, "timesteps": "sampler_range", "hflip": True, "anchor_lr": 1e-2},
     "infer": {"strength": 0.1, "guidance_scale": 1.0},
     "select": {"val_scenes": 0.25, "max_val_pairs": 4, "checkpoints": [], "strengths": [0.1, 0.3],
-               "guidance_scales": [1.0, 2.0]},
+               "guidance_scales": [1.0, 2.0], "residual_scales": [0.0, 1.0]},
     "baselines": {"regressor_steps": 150, "affine_colour": True},
 }
 
@@ -219,6 +224,9 @@ KEY_DOCS: dict[str, str] = {
     "select.checkpoints": "optimizer steps whose weights are candidate models besides the last step",
     "select.strengths": "candidate infer.strength values",
     "select.guidance_scales": "candidate infer.guidance_scale values",
+    "select.residual_scales": "candidate infer.residual_scale values (0 = the learned anchor alone)",
+    "infer.residual_scale": "weight in [0, 1] of the transformer's correction on top of the proxy anchor "
+    "(0 = anchor alone, no transformer call)",
     "select.metric": "psnr_db | ssim: the validation score (mean over clips) that picks checkpoint, strength, guidance",
     "baselines.regressor_steps": "optimizer steps of the one-step deterministic regressor (same network and "
     "anchor, proxy latent in both inputs, fixed timestep, L2 on the x0 latent); 0 = not trained",
@@ -272,6 +280,13 @@ def resolve_config(overrides: dict | None = None) -> dict:
         raise ValueError(f"select.metric={sel['metric']!r}: use 'psnr_db' or 'ssim'")
     if float(sel["val_scenes"]) < 0 or (float(sel["val_scenes"]) >= 1 and float(sel["val_scenes"]) % 1):
         raise ValueError(f"select.val_scenes={sel['val_scenes']}: an integer count >= 0 or a fraction in (0, 1)")
-    if not sel["strengths"] or not sel["guidance_scales"]:
-        raise ValueError("select.strengths and select.guidance_scales need at least one value each")
+    if not sel["strengths"] or not sel["guidance_scales"] or not sel["residual_scales"]:
+        raise ValueError("select.strengths, select.guidance_scales and select.residual_scales need at least one "
+                         "value each")
+    for r in [inf["residual_scale"], *sel["residual_scales"]]:
+        if not 0.0 <= float(r) <= 1.0:
+            raise ValueError(f"residual scale {r}: must be in [0, 1] (infer.residual_scale, select.residual_scales)")
+    if cfg["model"]["proxy_anchor"] == "none":
+        # without an anchor the transformer's output is the whole prediction: nothing to weigh
+        inf["residual_scale"], sel["residual_scales"] = 1.0, [1.0]
     return cfg

@@ -6,15 +6,18 @@
    The rest (the *fit* pairs) is all that any model or baseline is trained on.
 2. **Train** the diffusion refiner on the fit pairs (:func:`.training.train`), keeping the weights at
    ``select.checkpoints`` and at the last step as candidates.
-3. **Select** on validation: every (candidate step, ``select.strengths``, ``select.guidance_scales``)
-   refines up to ``select.max_val_pairs`` validation clips (taken round-robin over validation scenes)
-   with the run's sampler and seed; the highest mean ``select.metric`` wins (ties: the earlier step,
-   then the smaller strength, then the smaller guidance). Without validation scenes nothing is
-   selected and ``infer.*`` is used as configured.
+3. **Select** on validation: every (candidate step, ``select.strengths``, ``select.guidance_scales``,
+   ``select.residual_scales``) refines up to ``select.max_val_pairs`` validation clips (taken
+   round-robin over validation scenes) with the run's sampler and seed; the highest mean
+   ``select.metric`` wins (ties: the earlier step, then the smaller strength, then the smaller
+   guidance, then the full model). Residual scale 0 is the learned anchor map of the proxy alone
+   (trained jointly with the transformer): when the transformer's correction does not generalise to
+   unseen scenes, validation says so and the refiner falls back to its anchor. Without validation
+   scenes nothing is selected and ``infer.*`` is used as configured.
 4. **Baselines** (``baselines.*``): the one-step regressor (same network, trained on the fit pairs for
    ``baselines.regressor_steps``) and the affine colour fit, both scored on the same validation clips.
 5. Writes ``out_dir/model.pt`` last: the chosen weights, the config with the chosen
-   ``infer.strength``/``guidance_scale``, the selection table, the baselines and the carve-out.
+   ``infer.strength``/``guidance_scale``/``residual_scale``, the selection table, the baselines and the carve-out.
 
 Resumable: a killed run resumes training from its checkpoints (bit-exact) and redoes the cheap,
 deterministic selection. Test pairs are never read.
@@ -70,12 +73,13 @@ def score_method(fn, dataset) -> dict:
             "ssim": float(np.mean([r["ssim"] for r in rows])), "seconds_per_clip": float(np.mean(secs))}
 
 
-def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None):
+def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None,
+              residual_scale: float | None = None):
     """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``)."""
     def fn(item):
         gen = torch.Generator().manual_seed(cfg["seed"])
         return refine_video(model, item["proxy"][None], cfg, generator=gen, strength=strength,
-                            guidance_scale=guidance_scale, num_steps=num_steps)[0]
+                            guidance_scale=guidance_scale, num_steps=num_steps, residual_scale=residual_scale)[0]
     return fn
 
 
@@ -133,16 +137,22 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
         table = []
         for step in steps:
             model = _candidate_model(cfg, out_dir, step, max_steps, final["ae"])
-            for s, g in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"])):
-                sc = score_method(refine_fn(model, cfg, float(s), float(g)), val_ds)
+            for s, g, rs in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"]),
+                                              sorted(sel["residual_scales"], reverse=True)):
+                if float(rs) == 0.0 and float(g) != min(sel["guidance_scales"]):
+                    continue  # the anchor alone ignores guidance: score it once per step and strength
+                sc = score_method(refine_fn(model, cfg, float(s), float(g), residual_scale=float(rs)), val_ds)
                 table.append({"step": step, "strength": float(s), "guidance_scale": float(g),
-                              "psnr_db": sc["psnr_db"], "ssim": sc["ssim"], "seconds_per_clip": sc["seconds_per_clip"]})
-                log.info("validation step %d strength %.2f guidance %.1f: %.3f dB, SSIM %.4f", step, s, g,
-                         sc["psnr_db"], sc["ssim"])
+                              "residual_scale": float(rs), "psnr_db": sc["psnr_db"], "ssim": sc["ssim"],
+                              "seconds_per_clip": sc["seconds_per_clip"]})
+                log.info("validation step %d strength %.2f guidance %.1f residual %.1f: %.3f dB, SSIM %.4f", step,
+                         s, g, rs, sc["psnr_db"], sc["ssim"])
         metric = sel["metric"]
-        best = max(table, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"]))
+        # ties go to the earlier step, the smaller strength and guidance, and the full model (residual 1)
+        best = max(table, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"],
+                                         r["residual_scale"]))
         chosen = {"step": best["step"], "strength": best["strength"], "guidance_scale": best["guidance_scale"],
-                  "metric": metric, "value": best[metric]}
+                  "residual_scale": best["residual_scale"], "metric": metric, "value": best[metric]}
         if best["step"] != max_steps:
             snap = torch.load(snapshot_path(out_dir, best["step"]), map_location="cpu", weights_only=False)
             chosen_sd = {k: snap[k] for k in weight_keys if k in snap}
@@ -181,6 +191,7 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     if summary["selection"]["chosen"]:
         out_cfg["infer"]["strength"] = summary["selection"]["chosen"]["strength"]
         out_cfg["infer"]["guidance_scale"] = summary["selection"]["chosen"]["guidance_scale"]
+        out_cfg["infer"]["residual_scale"] = summary["selection"]["chosen"]["residual_scale"]
     save_checkpoint(out_dir / "model.pt", {**chosen_sd, "ae": final["ae"], "config": out_cfg,
                                            "selection": summary["selection"], "baselines": baselines,
                                            "carve": carve, "train": summary["train"]})

@@ -222,15 +222,20 @@ class Refiner(nn.Module):
         return ab.sqrt() * noisy - (1 - ab).sqrt() * v
 
     def forward(self, noisy: torch.Tensor, proxy: torch.Tensor, timestep: torch.Tensor,
-                anchor: torch.Tensor | None = None) -> torch.Tensor:
+                anchor: torch.Tensor | None = None, residual_scale: float = 1.0) -> torch.Tensor:
         """noisy, proxy: (B, F, C, h, w) latents; timestep: (B,) ints -> v prediction (B, F, C, h, w).
 
         ``anchor``: the latent the proxy anchor uses (default ``proxy``; CFG's unconditional branch
         passes the real proxy here and zeros as ``proxy``). Ignored when ``model.proxy_anchor`` is none.
+        ``residual_scale``: weight of the transformer's correction on the anchor (``infer.residual_scale``;
+        training always uses 1); 0 skips the transformer and returns the anchor's v.
         """
         if noisy.shape != proxy.shape:
             raise ValueError(f"noisy {tuple(noisy.shape)} and proxy {tuple(proxy.shape)} latents must match")
         b, f, _, h, w = noisy.shape
+        scale = float(residual_scale) if self.proxy_anchor != "none" else 1.0
+        if scale == 0.0:  # the anchor alone: the transformer's correction is not computed
+            return self._anchor_v(noisy, proxy if anchor is None else anchor, timestep, 0.0)
         dtype = self.transformer.dtype
         x = torch.cat([noisy, proxy], dim=2).to(dtype)
         emb = self.prompt_embeds.to(dtype).expand(b, -1, -1)
@@ -243,7 +248,10 @@ class Refiner(nn.Module):
         )[0].float()
         if self.proxy_anchor == "none":
             return out
-        a = proxy if anchor is None else anchor
+        return self._anchor_v(noisy, proxy if anchor is None else anchor, timestep, scale * out)
+
+    def _anchor_v(self, noisy: torch.Tensor, a: torch.Tensor, timestep: torch.Tensor, out) -> torch.Tensor:
+        """v of the proxy anchor (latent ``a``, through the learned map if any) plus the correction ``out``."""
         if self.anchor_map is not None:
             a = self.anchor_map(a)
         ab = self._abar(timestep)

@@ -21,14 +21,18 @@ from .schedule import build_scheduler
 from .tiling import fused_prediction, plan_windows
 
 
-def guided_prediction(model, z: torch.Tensor, zp: torch.Tensor, t, guidance_scale: float) -> torch.Tensor:
-    """v prediction of one window with CFG on the proxy (zeroed proxy = unconditional)."""
+def guided_prediction(model, z: torch.Tensor, zp: torch.Tensor, t, guidance_scale: float,
+                      residual_scale: float = 1.0) -> torch.Tensor:
+    """v prediction of one window with CFG on the proxy (zeroed proxy = unconditional).
+
+    ``residual_scale`` (``infer.residual_scale``) weighs the correction on a proxy anchor (model.py)."""
     tt = torch.full((z.shape[0],), int(t), dtype=torch.long, device=z.device)
-    cond = model(z, zp, tt)
-    if guidance_scale == 1.0:
+    kw = {} if residual_scale == 1.0 else {"residual_scale": residual_scale}
+    cond = model(z, zp, tt, **kw)
+    if guidance_scale == 1.0 or residual_scale == 0.0:  # the anchor alone has no proxy-free branch to guide
         return cond
     if getattr(model, "proxy_anchor", "none") != "none":
-        uncond = model(z, torch.zeros_like(zp), tt, anchor=zp)
+        uncond = model(z, torch.zeros_like(zp), tt, anchor=zp, **kw)
     else:
         uncond = model(z, torch.zeros_like(zp), tt)
     return uncond + guidance_scale * (cond - uncond)
@@ -56,17 +60,20 @@ def sample_latent(
     init_noise: torch.Tensor | None = None,
     mode: str = "fused",
     strength: float | None = None,
+    residual_scale: float | None = None,
 ) -> torch.Tensor:
     """Denoise a full-length latent conditioned on ``proxy_latent`` (B, F, C, h, w).
 
     mode ``fused``: the paper's overlap fusion. mode ``chunks``: the naive baseline -- disjoint
     windows denoised independently (same initial noise), concatenated; used only for benchmarks.
-    ``strength`` (default ``infer.strength``): see the module docstring.
+    ``strength`` (default ``infer.strength``): see the module docstring. ``residual_scale`` (default
+    ``infer.residual_scale``): weight of the transformer's correction on a proxy anchor.
     """
     inf = cfg["infer"]
     num_steps = num_steps or inf["num_steps"]
     gs = inf["guidance_scale"] if guidance_scale is None else guidance_scale
     strength = float(inf.get("strength", 1.0) if strength is None else strength)
+    rs = float(inf.get("residual_scale", 1.0) if residual_scale is None else residual_scale)
     window = window or inf["window"]
     overlap = inf["overlap"] if overlap is None else overlap
     if init_noise is None:
@@ -80,7 +87,7 @@ def sample_latent(
             parts.append(
                 sample_latent(model, proxy_latent[:, s:e], cfg, num_steps=num_steps, guidance_scale=gs,
                               window=window, overlap=0, generator=generator, init_noise=init_noise[:, s:e],
-                              strength=strength)
+                              strength=strength, residual_scale=rs)
             )
         return torch.cat(parts, dim=1)
     sched = build_scheduler(cfg)
@@ -99,7 +106,7 @@ def sample_latent(
     old_x0 = None
     for i, t in enumerate(timesteps):
         def predict(s, e, _z=z, _t=t):
-            return guided_prediction(model, _z[:, s:e], proxy_latent[:, s:e], _t, gs)
+            return guided_prediction(model, _z[:, s:e], proxy_latent[:, s:e], _t, gs, rs)
 
         v = fused_prediction(predict, tuple(z.shape), windows, inf["min_tent_weight"])
         if is_dpm:  # stochastic step; needs the previous x0 prediction and the previous timestep
