@@ -135,30 +135,9 @@ def apply_depth_fit(depth: np.ndarray, fit: np.ndarray) -> np.ndarray:
 
 
 def depth_scales(track: CameraTrack, depth_pred: np.ndarray, min_points: int) -> np.ndarray:
-    """Per-frame factors taking predicted depth to the cameras' units (``depth_fits`` in scale mode)."""
-    n, h, w = depth_pred.shape
-    if track.static:
-        return np.ones(n)
-    s = np.full(n, np.nan)
-    for i in range(n):
-        uv, z = point_depths(track, i)
-        if len(z) < min_points:
-            continue
-        col = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
-        row = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
-        dp = depth_pred[i, row, col]
-        ok = (z > 0) & np.isfinite(dp) & (dp > 0)
-        if ok.sum() >= min_points:
-            s[i] = np.median(z[ok] / dp[ok])
-    have = np.flatnonzero(np.isfinite(s))
-    if not len(have):
-        raise ReconstructionError("no frame sees enough SfM points to scale its depth")
-    for i in np.flatnonzero(~np.isfinite(s)):
-        s[i] = s[have[np.argmin(np.abs(have - i))]]
-    if n >= 3:
-        pad = np.concatenate([s[:1], s, s[-1:]])
-        s = np.median(np.stack([pad[:-2], pad[1:-1], pad[2:]]), axis=0)
-    return s
+    """Per-frame factors taking predicted depth to the cameras' units (``depth_fits`` in scale mode:
+    d' = d / a, so the factor is 1 / a)."""
+    return 1.0 / depth_fits(track, depth_pred, min_points, "scale")[:, 0]
 
 
 def normals_from_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
