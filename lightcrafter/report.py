@@ -278,6 +278,7 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
         parts.append(metrics_table(evals, [(VARIANT_LABELS.get(v, v), v, "refined") for v in full]))
         parts.append(not_computed_notes(evals))
         parts.append(_ordering_checks(evals))
+        parts.append(_selection_section(evals))
     else:
         parts.append(_not_computed("Tables 1 and 2", "no results/eval/*/*/metrics.json (run `snakemake` to the end)"))
 
@@ -367,6 +368,28 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
     index = out_dir / "index.html"
     write_text(index, "\n".join(p for p in parts if p))
     return index
+
+
+def _selection_section(evals: dict) -> str:
+    """What validation chose for each variant's refiner (from its evaluation's inference record)."""
+    rows = []
+    for v in sorted({k[0] for k in evals}):
+        e = next(evals[k] for k in evals if k[0] == v)
+        sel = (e.get("inference") or {}).get("selection") or {}
+        ch = sel.get("chosen")
+        if not ch:
+            rows.append({"variant": v, "note": sel.get("note", "no selection recorded")})
+            continue
+        rows.append({"variant": v, "step": ch.get("step"), "strength": ch.get("strength"),
+                     "guidance": ch.get("guidance_scale"), "residual": ch.get("residual_scale", 1.0),
+                     "val_refined_db": ch.get("value") if ch.get("metric") == "psnr_db" else None,
+                     "val_proxy_db": (sel.get("val_proxy") or {}).get("psnr_db"), "note": sel.get("note")})
+    if not rows:
+        return ""
+    return ("<h3>Refiner settings chosen on validation scenes (never test)</h3><p class='note'>residual 0 = the "
+            "learned latent map of the proxy alone (the transformer's correction did not help on validation); "
+            "1 = the full refiner.</p>" + _table(rows, ["variant", "step", "strength", "guidance", "residual",
+                                                         "val_refined_db", "val_proxy_db", "note"]))
 
 
 def _ordering_checks(evals: dict) -> str:
