@@ -104,7 +104,8 @@ def main() -> int:
         entries.append(entry)
         print(f"infer_refiner: {pid}: {len(disp)} frames in {sec:.1f} s", flush=True)
     write_json(out / "manifest.json", {"model": a.model, "split": a.split, "infer": cfg["infer"],
-                                       "selection": (model.selection or {}).get("chosen"), "pairs": entries})
+                                       "selection": {k: v for k, v in (model.selection or {}).items() if k != "table"},
+                                       "pairs": entries})
     return 0
 
 

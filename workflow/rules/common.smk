@@ -259,7 +259,12 @@ def refiner_model_config():
 
 
 def refiner_config_json(wildcards):
-    return as_json(refiner_model_config())
+    """The refiner config of a variant's training. The baselines (one-step regressor, affine colour) are
+    Table 1 methods: trained with the first variant of datasets.variants only."""
+    cfg = refiner_model_config()
+    if wildcards.variant != DATASET_VARIANTS[0]:
+        cfg = dict(cfg, baselines={"regressor_steps": 0, "affine_colour": False})
+    return as_json(cfg)
 
 
 def refiner_infer_json(wildcards):
