@@ -12,7 +12,8 @@ setup:
 run: setup
 	$(SNAKEMAKE)
 
-test: setup
+test:
+	bash scripts/setup.sh --test
 	$(PYTEST) -q --junitxml=results/tests/junit.xml
 
 test-fast: setup

@@ -10,6 +10,8 @@ if [ "$(id -u)" != "0" ]; then SUDO="sudo"; fi
 # libllvm19: Mitsuba's LLVM (CPU) variants JIT-compile with it; the distribution's LLVM 15 aborts.
 # The X/GL client libraries are what the bpy wheel links against on a headless machine.
 APT_PKGS="libllvm19 libxrender1 libxxf86vm1 libxfixes3 libxi6 libxkbcommon0 libsm6 libgl1 libegl1"
+# --test: Chromium as well, for the test that opens the run report in a real browser.
+if [ "${1:-}" = "--test" ]; then APT_PKGS="$APT_PKGS chromium"; fi
 missing=""
 for p in $APT_PKGS; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"

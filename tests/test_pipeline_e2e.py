@@ -81,6 +81,19 @@ def test_report_shows_tables_clips_and_curves(e2e_run):
     assert "<video" in html and "<img" in html
 
 
+def test_report_loads_in_a_real_browser(e2e_run):
+    """Every strip, plot and side-by-side video of the run's report loads and decodes in headless Chromium."""
+    from lightcrafter.report_check import check_report, find_browser
+
+    if find_browser() is None:
+        pytest.skip("no Chromium on this machine (`bash scripts/setup.sh --test` installs it)")
+    v = check_report(e2e_run / "results/report/index.html")
+    assert v["title"] == "LightCrafter run report" and v["text_chars"] > 2000
+    assert v["images"] >= 4 and v["broken_images"] == [], v
+    assert v["videos"] >= 2 and v["broken_videos"] == [], v
+    assert all(w > 0 and h > 0 for w, h in v["video_sizes"])
+
+
 def test_rerun_has_nothing_to_do(e2e_run):
     res = snakemake(e2e_run, "-n", "--quiet", "rules")
     assert res.returncode == 0

@@ -58,3 +58,29 @@ def test_best_per_column_is_marked():
     html = metrics_table(evals, [("full", "full", "refined"), ("no_real", "no_real", "refined")], ("synthetic",))
     row_best = html.split("<tr><td>no_real</td>")[1]
     assert row_best.startswith("<td class='best'>23")
+
+
+def test_browser_check_finds_broken_images_and_videos(tmp_path):
+    """The browser check must fail a page whose image is missing or whose mp4 does not decode."""
+    import numpy as np
+    import pytest
+
+    from lightcrafter.io import write_video
+    from lightcrafter.report_check import check_report, find_browser
+
+    if find_browser() is None:
+        pytest.skip("no Chromium on this machine (`bash scripts/setup.sh --test` installs it)")
+    from PIL import Image
+
+    Image.fromarray(np.full((8, 8, 3), 200, np.uint8)).save(tmp_path / "ok.png")
+    write_video(tmp_path / "ok.mp4", np.random.default_rng(0).integers(0, 255, (6, 64, 96, 3), dtype=np.uint8),
+                fps=6)
+    (tmp_path / "bad.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(500))
+    (tmp_path / "index.html").write_text(
+        "<!doctype html><html><head><title>t</title></head><body><p>x</p><img src='ok.png'><img src='gone.png'>"
+        "<video src='ok.mp4' muted></video><video src='bad.mp4' muted></video></body></html>")
+    v = check_report(tmp_path / "index.html")
+    assert v["images"] == 2 and v["broken_images"] == ["gone.png"], v
+    assert v["videos"] == 2 and v["broken_videos"] == ["bad.mp4"], v
+    assert v["video_sizes"][0] == [96, 64]
+    assert not list(tmp_path.glob(".check_*"))  # the harness is removed
