@@ -145,7 +145,8 @@ def _frame_info(folder: Path) -> tuple[int, int, int]:
         n += 1
     if n == 0:
         raise DataError(f"{folder}: no 0000.exr; the render is incomplete, rerun it")
-    extra = sorted(p.name for p in folder.glob("*.exr") if not p.name[:4].isdigit() or int(p.name[:4]) >= n)
+    # hidden files (a killed writer's ".0001.x.tmp.exr") are not frames; the next render of the folder removes them
+    extra = sorted(p.name for p in folder.glob("[!.]*.exr") if not p.name[:4].isdigit() or int(p.name[:4]) >= n)
     if extra:
         raise DataError(f"{folder}: frames are not consecutive from 0000 (stray {extra[:3]}); rerun the render")
     h, w = next(iter(read_exr(folder / "0000.exr", ("R", "G", "B")).values())).shape

@@ -127,9 +127,12 @@ def claim_frame_dir(frame_dir: str | os.PathLike, inputs) -> int:
     inputs (scene spec, settings, upstream buffers) must not reuse them. The folder's
     ``.inputs.json`` (written by :func:`stamp_frame_dir` before the first frame) records the
     fingerprint of what its frames come from; when it differs or is missing, every ``*.exr``
-    in the folder is deleted.
+    in the folder is deleted. Temporaries a killed writer left behind (``.*.tmp*``, see
+    :func:`atomic_path`) are always deleted: they were never renamed into place, so never trusted.
     """
     frame_dir = Path(frame_dir)
+    for debris in frame_dir.glob(".*.tmp*"):
+        debris.unlink(missing_ok=True)
     stamp = frame_dir / ".inputs.json"
     have = None
     if stamp.is_file():
@@ -139,7 +142,7 @@ def claim_frame_dir(frame_dir: str | os.PathLike, inputs) -> int:
             have = None
     removed = 0
     if have != fingerprint(inputs):
-        for f in frame_dir.glob("*.exr"):
+        for f in frame_dir.glob("[!.]*.exr"):
             f.unlink()
             removed += 1
     return removed

@@ -26,6 +26,21 @@ def test_claim_frame_dir_keeps_frames_of_same_inputs_and_drops_stale_ones(tmp_pa
     assert not (d / "0000.exr").exists()
 
 
+def test_a_killed_writers_temporary_is_removed_on_resume_and_never_read_as_a_frame(tmp_path):
+    """A kill inside atomic_path leaves '.0001.<rand>.tmp.exr' beside the finished frames (what the
+    kill-and-resume test found): the resumed render removes it, and a dataset read ignores it."""
+    from lightcrafter.datasets import _frame_info
+
+    d = tmp_path / "frames"
+    io.stamp_frame_dir(d, {"spp": 16})
+    io.write_rgb_exr(d / "0000.exr", np.ones((2, 3, 3)))
+    debris = d / ".0001.10horhl5.tmp.exr"
+    debris.write_bytes(b"half an EXR")
+    assert _frame_info(d) == (1, 3, 2)  # hidden temporaries are not frames
+    assert io.claim_frame_dir(d, {"spp": 16}) == 0  # finished frames kept...
+    assert (d / "0000.exr").exists() and not debris.exists()  # ...the temporary gone
+
+
 def test_frames_without_a_stamp_are_not_trusted(tmp_path):
     d = tmp_path / "frames"
     io.write_rgb_exr(d / "0000.exr", np.ones((2, 3, 3)))
