@@ -185,12 +185,32 @@ def not_computed_notes(evals: dict) -> str:
 
 
 # ----------------------------------------------------------------------------- run time
+# Benchmark folders that hold several rules' files: (folder, file-name prefix) -> rule (first match wins).
+_SHARED_BENCHMARK_FOLDERS = [
+    ("recon", "synthetic_", "reconstruct_synthetic"), ("recon", "align_", "align_synthetic"),
+    ("recon", "real_", "reconstruct_real"), ("recon", "train_gbuffer_estimator", "train_gbuffer_estimator"),
+    ("recon", "summarize_", "summarize_reconstruction"),
+    ("refiner", "train_", "train_refiner"), ("refiner", "infer_", "infer_refiner"),
+    ("refiner", "evaluate_", "evaluate_refiner"),
+    ("envfit", "mit_", "relight_mit"), ("envfit", "", "fit_envmap"), ("ingest", "", "ingest_video"),
+]
+
+
+def _rule_of_benchmark(rel: Path) -> str:
+    if len(rel.parts) == 1:
+        return rel.stem
+    folder, name = rel.parts[0], rel.name
+    for f, prefix, rule in _SHARED_BENCHMARK_FOLDERS:
+        if f == folder and name.startswith(prefix):
+            return rule
+    return folder
+
+
 def stage_costs(logs: Path) -> list[dict]:
     """Per rule: jobs, wall seconds, CPU seconds (Snakemake benchmark TSVs: s, cpu_time columns)."""
     rules: dict[str, dict] = {}
     for f in sorted(logs.glob("benchmark/**/*.tsv")):
-        rel = f.relative_to(logs / "benchmark")
-        rule = rel.parts[0] if len(rel.parts) > 1 else rel.stem
+        rule = _rule_of_benchmark(f.relative_to(logs / "benchmark"))
         try:
             rows = list(csv.DictReader(f.open(), delimiter="\t"))
         except OSError:

@@ -84,3 +84,19 @@ def test_browser_check_finds_broken_images_and_videos(tmp_path):
     assert v["videos"] == 2 and v["broken_videos"] == ["bad.mp4"], v
     assert v["video_sizes"][0] == [96, 64]
     assert not list(tmp_path.glob(".check_*"))  # the harness is removed
+
+
+def test_stage_costs_split_folders_shared_by_several_rules(tmp_path):
+    """recon/ holds Phi, Align and the estimator; refiner/ training, inference and evaluation: each its own stage."""
+    b = tmp_path / "logs" / "benchmark"
+    row = "s\th:m:s\tmax_rss\tcpu_time\n{0}\t0:00:01\t1\t{0}\n"
+    for rel, sec in [("recon/synthetic_s0000_t0.tsv", 5), ("recon/synthetic_s0000_t1.tsv", 7),
+                     ("recon/align_s0000_t0.tsv", 1), ("recon/real_bikes_f32.tsv", 3),
+                     ("recon/train_gbuffer_estimator.tsv", 20), ("refiner/train_full.tsv", 100),
+                     ("refiner/infer_full_real.tsv", 9), ("envfit/bikes_f32.tsv", 30), ("render_rgb/s0_t0_L1.tsv", 4)]:
+        (b / rel).parent.mkdir(parents=True, exist_ok=True)
+        (b / rel).write_text(row.format(sec))
+    got = {c["stage"]: (c["jobs"], c["cpu_s"]) for c in stage_costs(tmp_path / "logs")}
+    assert got == {"reconstruct_synthetic": (2, 12.0), "align_synthetic": (1, 1.0), "reconstruct_real": (1, 3.0),
+                   "train_gbuffer_estimator": (1, 20.0), "train_refiner": (1, 100.0), "infer_refiner": (1, 9.0),
+                   "fit_envmap": (1, 30.0), "render_rgb": (1, 4.0)}
