@@ -41,7 +41,7 @@ from .data import PairsDataset, read_pairs
 from .model import Refiner
 from .sampler import refine_video
 from .scoring import clip_scores
-from .training import load_model, run_fingerprint, save_checkpoint, snapshot_path, train
+from .training import SELECTED_INFER_KEYS, load_model, run_fingerprint, save_checkpoint, snapshot_path, train
 from .validation import carve_validation, pair_group
 
 DIFFUSION_FINAL = "diffusion.pt"
@@ -189,9 +189,7 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
 
     out_cfg = copy.deepcopy(cfg)
     if summary["selection"]["chosen"]:
-        out_cfg["infer"]["strength"] = summary["selection"]["chosen"]["strength"]
-        out_cfg["infer"]["guidance_scale"] = summary["selection"]["chosen"]["guidance_scale"]
-        out_cfg["infer"]["residual_scale"] = summary["selection"]["chosen"]["residual_scale"]
+        out_cfg["infer"].update({k: summary["selection"]["chosen"][k] for k in SELECTED_INFER_KEYS})
     save_checkpoint(out_dir / "model.pt", {**chosen_sd, "ae": final["ae"], "config": out_cfg,
                                            "selection": summary["selection"], "baselines": baselines,
                                            "carve": carve, "train": summary["train"]})
