@@ -13,6 +13,7 @@ a temporary name and removed afterwards.
 from __future__ import annotations
 
 import argparse
+import html
 import json
 import re
 import shutil
@@ -84,8 +85,7 @@ def check_report(index: str | Path, *, browser: str | None = None, timeout_s: fl
     m = re.search(r'<pre id="verdict">(.*?)</pre>', r.stdout, re.S)
     if not m or m.group(1).strip() == "pending":
         raise RuntimeError(f"{index}: the browser never reported (exit {r.returncode}): {r.stderr[-500:]}")
-    verdict = json.loads(m.group(1).replace("&quot;", '"').replace("&amp;", "&").replace("&lt;", "<")
-                         .replace("&gt;", ">"))
+    verdict = json.loads(html.unescape(m.group(1)))
     if screenshot:
         subprocess.run(_flags(browser) + [f"--screenshot={Path(screenshot).resolve()}", "--window-size=1300,6000",
                                           "--virtual-time-budget=10000", index.as_uri()],
