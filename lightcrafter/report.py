@@ -396,7 +396,7 @@ def _selection_section(evals: dict) -> str:
     for v in sorted({k[0] for k in evals}):
         e = next(evals[k] for k in evals if k[0] == v)
         sel = (e.get("inference") or {}).get("selection") or {}
-        ch = sel.get("chosen") if "chosen" in sel else (sel if "step" in sel else None)
+        ch = sel.get("chosen")
         if not ch:
             rows.append({"variant": v, "note": sel.get("note", "no selection recorded")})
             continue
