@@ -273,17 +273,11 @@ def hdri_pool(scfg: dict) -> list[str]:
     return [f"builtin:{name}" for name in builtin_hdris()]
 
 
-def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: dict,
-                 hdris: list[str]) -> dict:
-    """The full declarative scene spec for scene ``index`` (see docs/architecture.md)."""
-    plan = plan_scene(scfg, seed, index)
-    rng = _rng(seed, index, 2)
-    accepted = sorted(manifest["accepted"], key=lambda a: a["id"])
-    n_assets, n_prims = int(scfg["objects_per_scene"]), int(scfg["primitives_per_scene"])
-    if n_assets and len(accepted) < 1:
-        raise ConfigError("assets: the curation manifest accepted no assets; see its 'rejected' list")
-    if not hdris:
-        raise ConfigError("scenes: no HDRIs to sample lightings from")
+LAYOUT_REDRAWS = 8  # content redraws of one scene before its layout counts as infeasible
+
+
+def _draw_content(scfg: dict, rng, accepted: list[dict], n_assets: int, n_prims: int):
+    """Objects (assets + primitives, sizes in metres) and their placement on the ground disc."""
     chosen = rng.choice(len(accepted), size=n_assets, replace=len(accepted) < n_assets) if n_assets else []
 
     objects, radii, heights, ids = [], [], [], []
@@ -321,6 +315,29 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
     for o, p in zip(objects, placed):
         o["location_m"] = [round(p.x, 6), round(p.y, 6), 0.0]
         o["rotation_euler_rad"] = [0.0, 0.0, round(float(rng.uniform(0, 2 * math.pi)), 6)]
+    return objects, placed, heights
+
+
+def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: dict,
+                 hdris: list[str]) -> dict:
+    """The full declarative scene spec for scene ``index`` (see docs/architecture.md)."""
+    plan = plan_scene(scfg, seed, index)
+    accepted = sorted(manifest["accepted"], key=lambda a: a["id"])
+    n_assets, n_prims = int(scfg["objects_per_scene"]), int(scfg["primitives_per_scene"])
+    if n_assets and len(accepted) < 1:
+        raise ConfigError("assets: the curation manifest accepted no assets; see its 'rejected' list")
+    if not hdris:
+        raise ConfigError("scenes: no HDRIs to sample lightings from")
+    # A draw whose objects do not fit the layout disc (rejection sampling jams near 55 % area cover) is
+    # redrawn from the next sub-stream; scenes whose first draw fits are unchanged by this.
+    for attempt in range(LAYOUT_REDRAWS + 1):
+        rng = _rng(seed, index, 2) if attempt == 0 else np.random.default_rng([int(seed), int(index), 2, attempt])
+        try:
+            objects, placed, heights = _draw_content(scfg, rng, accepted, n_assets, n_prims)
+            break
+        except ConfigError:
+            if attempt == LAYOUT_REDRAWS:
+                raise
 
     # Bounding sphere of the layout (incl. motion slack) around a target at mid-height.
     max_h = max(heights) if heights else 0.5
@@ -373,7 +390,7 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
         "objects": objects,
         "lightings": lightings,
         "trajectories": trajectories,
-    }
+    } | ({"layout_redraws": attempt} if attempt else {})
 
 
 # ----------------------------------------------------------------------------- spec lookups

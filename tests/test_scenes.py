@@ -151,6 +151,29 @@ def test_impossible_layout_is_a_named_error(default_config):
         _spec(cfg, 0)
 
 
+def test_a_draw_that_does_not_fit_is_redrawn_and_other_scenes_do_not_change(default_config, monkeypatch):
+    """A random draw of objects too big for the layout disc (it happened to scene 14 of the study config)
+    is redrawn from a reproducible sub-stream instead of stopping the run; scenes that fit at once keep
+    their spec, byte for byte."""
+    cfg = _cfg(default_config)
+    before = {i: _spec(cfg, i) for i in (0, 1)}
+    place, calls = scenes._place, {"n": 0}
+
+    def jam_once(*a, **k):  # the first placement of scene 1 jams, as rejection sampling can
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise scenes.ConfigError("scenes.layout_radius_m=1.6 is too small to place 6 objects without overlap")
+        return place(*a, **k)
+
+    monkeypatch.setattr(scenes, "_place", jam_once)
+    redrawn = _spec(cfg, 1)
+    monkeypatch.setattr(scenes, "_place", place)
+    assert redrawn["layout_redraws"] == 1 and "layout_redraws" not in before[1]
+    assert redrawn["objects"] != before[1]["objects"]
+    assert _spec(cfg, 1) == before[1] and _spec(cfg, 0) == before[0]  # untouched without the jam
+    assert _spec(cfg, 1) == _spec(cfg, 1)
+
+
 def test_missing_hdri_folder_is_a_named_error(default_config, tmp_path):
     with pytest.raises(scenes.ConfigError, match="hdri_dir"):
         scenes.hdri_pool({"hdri_dir": str(tmp_path)})
