@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_path, read_json, write_text
+from .io import atomic_path, read_json, write_json, write_text
 
 METRIC_LABELS = {"psnr_db": ("PSNR", True), "ssim": ("SSIM", True), "lpips": ("LPIPS", False),
                  "t_clip": ("T-CLIP", True), "warp_ssim": ("Warp-SSIM", True)}
@@ -121,25 +121,32 @@ def _cell(mean: dict, ci: dict, method: str, metric: str):
     return v, c
 
 
-def metrics_table(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=("synthetic", "real")) -> str:
-    """One table: rows (label, variant, method); columns per benchmark and metric; best per column bold."""
+def _table_grid(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=("synthetic", "real")):
+    """The cells of one table: columns (bench, metric), values[(label, bench, metric)] = (mean, ci), best per column."""
     cols = [(b, m) for b in benches for m in TABLE_METRICS[b] if b in {k[0] for k in _bench_keys(evals)}]
-    if not cols:
-        return _not_computed("table", "no evaluation results")
     values = {}
     for label, variant, method in rows:
         for b, m in cols:
             e = evals.get((variant, b))
-            if e is None:
-                values[(label, b, m)] = (None, None)
-                continue
-            values[(label, b, m)] = _cell(e.get("mean", {}), e.get("ci", {}), method, m)
+            values[(label, b, m)] = (None, None) if e is None else _cell(e.get("mean", {}), e.get("ci", {}), method, m)
     best = {}
     for b, m in cols:
         higher = METRIC_LABELS[m][1]
         vals = [values[(lbl, b, m)][0] for lbl, _, _ in rows if values[(lbl, b, m)][0] is not None]
         if vals:
             best[(b, m)] = max(vals) if higher else min(vals)
+    return cols, values, best
+
+
+def _is_best(best: dict, b: str, m: str, v: float) -> bool:
+    return best.get((b, m)) is not None and bool(np.isclose(v, best[(b, m)]))
+
+
+def metrics_table(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=("synthetic", "real")) -> str:
+    """One table: rows (label, variant, method); columns per benchmark and metric; best per column bold."""
+    cols, values, best = _table_grid(evals, rows, benches)
+    if not cols:
+        return _not_computed("table", "no evaluation results")
     head1 = "<tr><th rowspan=2>method</th>" + "".join(
         f"<th colspan={sum(1 for c in cols if c[0] == b)}>{_esc(b)}</th>" for b in dict.fromkeys(c[0] for c in cols)) + "</tr>"
     head2 = "<tr>" + "".join(f"<th>{METRIC_LABELS[m][0]} {'&uarr;' if METRIC_LABELS[m][1] else '&darr;'}</th>"
@@ -152,11 +159,33 @@ def metrics_table(evals: dict[str, dict], rows: list[tuple[str, str, str]], benc
             if v is None:
                 body += "<td class='nc'>&ndash;</td>"
                 continue
-            cls = " class='best'" if best.get((b, m)) is not None and np.isclose(v, best[(b, m)]) else ""
+            cls = " class='best'" if _is_best(best, b, m, v) else ""
             ci = f"<br><span class='ci'>[{c[0]:.3g}, {c[1]:.3g}]</span>" if c and None not in c else ""
             body += f"<td{cls}>{v:.4g}{ci}</td>"
         body += "</tr>"
     return f"<table>{head1}{head2}{body}</table>"
+
+
+def metrics_table_markdown(evals: dict[str, dict], rows: list[tuple[str, str, str]],
+                           benches=("synthetic", "real")) -> str:
+    """The same table as :func:`metrics_table` in Markdown (best per column in bold, interval in brackets)."""
+    cols, values, best = _table_grid(evals, rows, benches)
+    if not cols:
+        return "_not computed: no evaluation results_\n"
+    arrows = {True: "↑", False: "↓"}
+    head = "| method | " + " | ".join(f"{b} {METRIC_LABELS[m][0]} {arrows[METRIC_LABELS[m][1]]}" for b, m in cols) + " |"
+    lines = [head, "| --- |" + " ---: |" * len(cols)]
+    for label, _, _ in rows:
+        cells = []
+        for b, m in cols:
+            v, c = values[(label, b, m)]
+            if v is None:
+                cells.append("–")
+                continue
+            txt = f"**{v:.4g}**" if _is_best(best, b, m, v) else f"{v:.4g}"
+            cells.append(txt + (f" [{c[0]:.3g}, {c[1]:.3g}]" if c and None not in c else ""))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _bench_keys(evals):
@@ -264,6 +293,22 @@ def side_by_side_video(folders: list[Path], out: Path, fps: float = 12.0, scale:
 
 
 # ----------------------------------------------------------------------------- report
+def _variants(evals: dict) -> list[str]:
+    return [v for v in ("full", "no_real", "no_synthetic", "clean_buffers") if any(k[0] == v for k in evals)]
+
+
+def _first_variant(evals: dict) -> str | None:
+    return next(iter(_variants(evals)), None)
+
+
+def _table1_rows(evals: dict, v0: str) -> list[tuple[str, str, str]]:
+    methods = []
+    for (v, _b), e in evals.items():
+        if v == v0:
+            methods += [m for m in e.get("methods", []) if m not in methods]
+    return [(METHOD_LABELS.get(m, m), v0, m) for m in methods]
+
+
 def build_report(results_dir: str | Path = "results", logs_dir: str | Path | None = None,
                  projection: dict | None = None) -> Path:
     """Write ``results/report/index.html`` from whatever the run and the benchmarks produced."""
@@ -281,14 +326,10 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
 
     # 1. tables ------------------------------------------------------------------------------
     parts.append("<h2 id='tables'>Table 1: methods (trained on the full data)</h2>")
-    full = [v for v in ("full", "no_real", "no_synthetic", "clean_buffers") if any(k[0] == v for k in evals)]
+    full = _variants(evals)
     if full:
         v0 = full[0]
-        methods = []
-        for (v, b), e in evals.items():
-            if v == v0:
-                methods += [m for m in e.get("methods", []) if m not in methods]
-        rows = [(METHOD_LABELS.get(m, m), v0, m) for m in methods]
+        rows = _table1_rows(evals, v0)
         parts.append(f"<p class='note'>Variant <code>{_esc(v0)}</code>; mean over held-out clips (frame-wise metrics on "
                      "display values, averaged per clip), 95 % bootstrap interval over clips below each value. "
                      "Synthetic: target-light Cycles video; real: relit back to the fitted source light and compared "
@@ -385,6 +426,9 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
     parts.append("<h2 id='stability'>Numerical stability and bad-input tests</h2>")
     parts.append(_stability_section(results))
     parts.append("</body></html>")
+    if evals:
+        write_text(out_dir / "tables.md", tables_markdown(evals))
+        write_json(out_dir / "orderings.json", ordering_checks(evals))
     index = out_dir / "index.html"
     write_text(index, "\n".join(p for p in parts if p))
     return index
@@ -412,32 +456,103 @@ def _selection_section(evals: dict) -> str:
                                                          "val_refined_db", "val_proxy_db", "note"]))
 
 
+# The paper's orderings: (name, (variant, bench, method) on the left, the same on the right); PSNR.
+ORDERINGS = [
+    ("refined > proxy on synthetic (full)", ("full", "synthetic", "refined"), ("full", "synthetic", "proxy")),
+    ("full > no_real on real", ("full", "real", "refined"), ("no_real", "real", "refined")),
+    ("full > no_synthetic on synthetic", ("full", "synthetic", "refined"), ("no_synthetic", "synthetic", "refined")),
+    ("artifact-matched (no_real) > clean_buffers on real", ("no_real", "real", "refined"),
+     ("clean_buffers", "real", "refined")),
+    ("artifact-matched (no_real) > clean_buffers on synthetic", ("no_real", "synthetic", "refined"),
+     ("clean_buffers", "synthetic", "refined")),
+]
+
+
+def _per_clip(evals: dict, variant: str, bench: str, method: str, metric: str) -> dict[str, float]:
+    e = evals.get((variant, bench)) or {}
+    out = {}
+    for p in e.get("pairs") or []:
+        v = (p.get(method) or {}).get(metric) if isinstance(p.get(method), dict) else None
+        if p.get("pair_id") is not None and v is not None and np.isfinite(v):
+            out[str(p["pair_id"])] = float(v)
+    return out
+
+
+def ordering_checks(evals: dict, metric: str = "psnr_db") -> list[dict]:
+    """Each of the paper's orderings on this run: both means, and the paired difference over the clips both
+    sides scored (95 % paired bootstrap interval, :func:`lightcrafter.evaluation.paired_bootstrap_ci`).
+
+    ``verdict``: "holds" when the interval lies above 0, "reversed" when below 0, "inconclusive" when it
+    spans 0, "holds on the mean" / "reversed on the mean" when there are fewer than 2 paired clips, and
+    "not computed" when a side is missing."""
+    from .evaluation import paired_bootstrap_ci
+
+    out = []
+    for name, left, right in ORDERINGS:
+        rec = {"ordering": name, "metric": metric, "left": "/".join(left), "right": "/".join(right)}
+        la, ra = (evals.get(left[:2]) or {}).get("mean", {}), (evals.get(right[:2]) or {}).get("mean", {})
+        lm, rm = (la.get(left[2]) or {}).get(metric), (ra.get(right[2]) or {}).get(metric)
+        if lm is None or rm is None:
+            out.append({**rec, "verdict": "not computed"})
+            continue
+        rec.update(left_mean=lm, right_mean=rm)
+        lc, rc = _per_clip(evals, *left, metric), _per_clip(evals, *right, metric)
+        ids = sorted(set(lc) & set(rc))
+        if len(ids) >= 2:
+            ci = paired_bootstrap_ci([lc[i] for i in ids], [rc[i] for i in ids])
+            rec.update(diff_mean=ci["mean"], diff_low=ci["low"], diff_high=ci["high"], clips=len(ids))
+            rec["verdict"] = "holds" if ci["low"] > 0 else "reversed" if ci["high"] < 0 else "inconclusive"
+        else:
+            rec.update(diff_mean=lm - rm, clips=len(ids))
+            rec["verdict"] = "holds on the mean" if lm > rm else "reversed on the mean"
+        out.append(rec)
+    return out
+
+
 def _ordering_checks(evals: dict) -> str:
     """Which of the paper's orderings hold on this run (with the numbers)."""
-    def val(v, b, m="psnr_db", method="refined"):
-        e = evals.get((v, b))
-        return None if e is None else (e.get("mean", {}).get(method) or {}).get(m)
+    rows = [{"ordering (PSNR)": r["ordering"], "left dB": r.get("left_mean"), "right dB": r.get("right_mean"),
+             "difference dB [95 % CI]": _diff_text(r), "paired clips": r.get("clips"), "verdict": r["verdict"]}
+            for r in ordering_checks(evals)]
+    return ("<h3>The paper's orderings on this run</h3><p class='note'>difference = left − right over the clips "
+            "both sides scored, 95 % paired bootstrap interval; holds / reversed when the interval excludes 0, "
+            "inconclusive when it spans 0.</p>"
+            + _table(rows, ["ordering (PSNR)", "left dB", "right dB", "difference dB [95 % CI]", "paired clips",
+                            "verdict"]))
 
-    checks = [
-        ("refined > proxy on synthetic (full)", val("full", "synthetic"), val("full", "synthetic", method="proxy")),
-        ("full > no_real on real", val("full", "real"), val("no_real", "real")),
-        ("full > no_synthetic on synthetic", val("full", "synthetic"), val("no_synthetic", "synthetic")),
-        ("artifact-matched (no_real) > clean_buffers on real", val("no_real", "real"), val("clean_buffers", "real")),
-        ("artifact-matched (no_real) > clean_buffers on synthetic", val("no_real", "synthetic"),
-         val("clean_buffers", "synthetic")),
-    ]
-    rows = []
-    for name, a, b in checks:
-        if a is None or b is None:
-            rows.append({"ordering (PSNR)": name, "holds": "not computed"})
-        else:
-            rows.append({"ordering (PSNR)": name, "left dB": a, "right dB": b, "holds": "yes" if a > b else "no"})
-    return "<h3>The paper's orderings on this run</h3>" + _table(rows, ["ordering (PSNR)", "left dB", "right dB", "holds"])
+
+def _diff_text(r: dict) -> str:
+    if r.get("diff_mean") is None:
+        return ""
+    if r.get("diff_low") is None:
+        return f"{r['diff_mean']:+.2f}"
+    return f"{r['diff_mean']:+.2f} [{r['diff_low']:+.2f}, {r['diff_high']:+.2f}]"
+
+
+def tables_markdown(evals: dict) -> str:
+    """Table 1, Table 2 and the orderings in Markdown (``results/report/tables.md``), for a README or a note."""
+    v0 = _first_variant(evals)
+    if v0 is None:
+        return "_Tables 1 and 2: not computed (no results/eval/*/*/metrics.json)_\n"
+    n = {b: (evals.get((v0, b)) or {}).get("num_pairs") for b in ("synthetic", "real")}
+    parts = [f"Table 1: methods (variant `{v0}`; {n['synthetic']} synthetic and {n['real']} real test clips; "
+             "mean [95 % bootstrap interval over clips])\n", metrics_table_markdown(evals, _table1_rows(evals, v0)),
+             "\nTable 2: ablations of the training data\n",
+             metrics_table_markdown(evals, [(VARIANT_LABELS.get(v, v), v, "refined") for v in _variants(evals)]),
+             "\nThe paper's orderings (PSNR; left − right over the same clips, 95 % paired bootstrap interval)\n",
+             "| ordering | left dB | right dB | difference dB | clips | verdict |", "| --- | ---: | ---: | ---: | ---: | --- |"]
+    for r in ordering_checks(evals):
+        lm, rm = r.get("left_mean"), r.get("right_mean")
+        parts.append(f"| {r['ordering']} | {'' if lm is None else f'{lm:.2f}'} | {'' if rm is None else f'{rm:.2f}'} | "
+                     f"{_diff_text(r)} | {r.get('clips', '')} | {r['verdict']} |")
+    notes = {k: w for e in evals.values() for k, w in (e.get("not_computed") or {}).items()}
+    parts += [f"\n{METRIC_LABELS.get(k, (k,))[0]}: not computed ({w})." for k, w in sorted(notes.items())]
+    return "\n".join(parts) + "\n"
 
 
 def _clips_section(results: Path, out_dir: Path, evals: dict) -> str:
     parts = []
-    variant = next((v for v in ("full", "no_real", "no_synthetic", "clean_buffers") if any(k[0] == v for k in evals)), None)
+    variant = _first_variant(evals)
     if variant is None:
         return _not_computed("clip gallery", "no refined clips")
     for bench in ("synthetic", "real"):

@@ -2,7 +2,10 @@
 
 import json
 
-from lightcrafter.report import build_report, metrics_table, stage_costs
+import numpy as np
+import pytest
+
+from lightcrafter.report import build_report, metrics_table, ordering_checks, stage_costs, tables_markdown
 
 
 def _eval(psnr_proxy, psnr_refined, lpips=None):
@@ -100,3 +103,49 @@ def test_stage_costs_split_folders_shared_by_several_rules(tmp_path):
     assert got == {"reconstruct_synthetic": (2, 12.0), "align_synthetic": (1, 1.0), "reconstruct_real": (1, 3.0),
                    "train_gbuffer_estimator": (1, 20.0), "train_refiner": (1, 100.0), "infer_refiner": (1, 9.0),
                    "fit_envmap": (1, 30.0), "render_rgb": (1, 4.0)}
+
+
+def _eval_pairs(per_clip: dict[str, dict[str, float]]):
+    """An evaluation with per-clip PSNR for each method (clip id -> method -> dB)."""
+    methods = sorted({m for v in per_clip.values() for m in v})
+    pairs = [{"pair_id": k, **{m: {"psnr_db": v[m]} for m in v}} for k, v in sorted(per_clip.items())]
+    mean = {m: {"psnr_db": float(np.mean([v[m] for v in per_clip.values()]))} for m in methods}
+    return {"methods": methods, "num_pairs": len(pairs), "mean": mean, "ci": {}, "pairs": pairs}
+
+
+def test_orderings_carry_paired_intervals_and_honest_verdicts(tmp_path):
+    """An ordering holds only when the paired interval over the same clips lies above 0; a difference
+    whose clips disagree in sign is inconclusive however large its mean; a missing side is not computed."""
+    clips = [f"c{k}" for k in range(6)]
+    evals = {
+        # refined beats the proxy by 1 dB +- 0.1 on every clip: holds
+        ("full", "synthetic"): _eval_pairs({c: {"proxy": 10.0 + k, "refined": 11.0 + k + 0.1 * (-1) ** k}
+                                            for k, c in enumerate(clips)}),
+        # full is 2 dB better than no_synthetic on half the clips and 1 dB worse on the others: inconclusive
+        ("no_synthetic", "synthetic"): _eval_pairs({c: {"refined": 11.0 + k + (-2.0 if k % 2 else 1.0)}
+                                                    for k, c in enumerate(clips)}),
+        # the clean-buffer model wins on every real clip: reversed
+        ("no_real", "real"): _eval_pairs({c: {"refined": 12.0 + k} for k, c in enumerate(clips)}),
+        ("clean_buffers", "real"): _eval_pairs({c: {"refined": 13.0 + k} for k, c in enumerate(clips)}),
+    }
+    checks = {r["ordering"]: r for r in ordering_checks(evals)}
+    assert checks["refined > proxy on synthetic (full)"]["verdict"] == "holds"
+    assert 0.9 < checks["refined > proxy on synthetic (full)"]["diff_low"]
+    assert checks["full > no_synthetic on synthetic"]["verdict"] == "inconclusive"
+    assert checks["artifact-matched (no_real) > clean_buffers on real"]["verdict"] == "reversed"
+    assert checks["artifact-matched (no_real) > clean_buffers on real"]["diff_mean"] == pytest.approx(-1.0)
+    assert checks["full > no_real on real"]["verdict"] == "not computed"  # no full/real evaluation
+    md = tables_markdown(evals)
+    assert "| refined > proxy on synthetic (full) | 13.50 | 12.50 | +1.00 [" in md
+    assert "Table 2" in md and "**" in md  # the best per column is bold
+
+
+def test_report_writes_tables_markdown_and_orderings(tmp_path):
+    r = _results(tmp_path)
+    build_report(r, tmp_path / "logs")
+    md = (r / "report" / "tables.md").read_text()
+    assert "Table 1" in md and "Ours (no synthetic)" in md
+    # the fixture has no per-clip values: the verdict says it rests on the means alone
+    orderings = json.loads((r / "report" / "orderings.json").read_text())
+    assert {o["verdict"] for o in orderings} <= {"holds on the mean", "reversed on the mean"}
+    assert next(o for o in orderings if o["ordering"].startswith("full > no_synthetic"))["verdict"] == "holds on the mean"
