@@ -44,9 +44,10 @@ def scene_index(scene_id: str) -> int:
     return int(scene_id.lstrip("s"))
 
 
-def _rng(seed: int, index: int, stream: int) -> np.random.Generator:
-    """Independent, reproducible random streams per (seed, scene, purpose)."""
-    return np.random.default_rng([int(seed), int(index), int(stream)])
+def _rng(seed: int, index: int, stream: int, redraw: int = 0) -> np.random.Generator:
+    """Independent, reproducible random streams per (seed, scene, purpose); ``redraw`` > 0 gives the
+    stream's k-th sub-stream (redraw 0 is the stream itself)."""
+    return np.random.default_rng([int(seed), int(index), int(stream), *([int(redraw)] if redraw else [])])
 
 
 # ----------------------------------------------------------------------------- splits
@@ -315,7 +316,7 @@ def _draw_content(scfg: dict, rng, accepted: list[dict], n_assets: int, n_prims:
     for o, p in zip(objects, placed):
         o["location_m"] = [round(p.x, 6), round(p.y, 6), 0.0]
         o["rotation_euler_rad"] = [0.0, 0.0, round(float(rng.uniform(0, 2 * math.pi)), 6)]
-    return objects, placed, heights
+    return objects, placed
 
 
 def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: dict,
@@ -331,16 +332,16 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
     # A draw whose objects do not fit the layout disc (rejection sampling jams near 55 % area cover) is
     # redrawn from the next sub-stream; scenes whose first draw fits are unchanged by this.
     for attempt in range(LAYOUT_REDRAWS + 1):
-        rng = _rng(seed, index, 2) if attempt == 0 else np.random.default_rng([int(seed), int(index), 2, attempt])
+        rng = _rng(seed, index, 2, redraw=attempt)
         try:
-            objects, placed, heights = _draw_content(scfg, rng, accepted, n_assets, n_prims)
+            objects, placed = _draw_content(scfg, rng, accepted, n_assets, n_prims)
             break
         except ConfigError:
             if attempt == LAYOUT_REDRAWS:
                 raise
 
     # Bounding sphere of the layout (incl. motion slack) around a target at mid-height.
-    max_h = max(heights) if heights else 0.5
+    max_h = max((p.h for p in placed), default=0.5)
     centre = np.array([0.0, 0.0, 0.4 * max_h])
     slack = float(scfg["clearance_m"])
     bound_r = max(math.sqrt((math.hypot(p.x, p.y) + p.r + slack) ** 2 + max(p.h - centre[2], centre[2]) ** 2)
