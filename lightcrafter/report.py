@@ -202,11 +202,13 @@ def load_evals(results: Path) -> dict[tuple[str, str], dict]:
     return out
 
 
+def _not_computed_metrics(evals: dict) -> dict[str, str]:
+    """metric -> why it was not computed, over every evaluation."""
+    return {k: why for e in evals.values() for k, why in (e.get("not_computed") or {}).items()}
+
+
 def not_computed_notes(evals: dict) -> str:
-    notes = {}
-    for e in evals.values():
-        for k, why in (e.get("not_computed") or {}).items():
-            notes[k] = why
+    notes = _not_computed_metrics(evals)
     if not notes:
         return ""
     return "".join(f"<p class='note'>{_esc(METRIC_LABELS.get(k, (k,))[0])}: not computed &mdash; {_esc(w)}</p>"
@@ -317,6 +319,7 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
     out_dir = results / "report"
     out_dir.mkdir(parents=True, exist_ok=True)
     evals = load_evals(results)
+    orderings = ordering_checks(evals)
     nav = ["tables", "clips", "reconstruction", "leave-out", "runtime", "curves", "longform", "edits", "stability"]
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>LightCrafter run report</title>",
              f"<style>{CSS}</style></head><body><h1>LightCrafter run report</h1>",
@@ -338,7 +341,7 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
         parts.append("<h2>Table 2: ablations of the training data</h2>")
         parts.append(metrics_table(evals, [(VARIANT_LABELS.get(v, v), v, "refined") for v in full]))
         parts.append(not_computed_notes(evals))
-        parts.append(_ordering_checks(evals))
+        parts.append(_ordering_checks(orderings))
         parts.append(_selection_section(evals))
     else:
         parts.append(_not_computed("Tables 1 and 2", "no results/eval/*/*/metrics.json (run `snakemake` to the end)"))
@@ -427,8 +430,8 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
     parts.append(_stability_section(results))
     parts.append("</body></html>")
     if evals:
-        write_text(out_dir / "tables.md", tables_markdown(evals))
-        write_json(out_dir / "orderings.json", ordering_checks(evals))
+        write_text(out_dir / "tables.md", tables_markdown(evals, orderings))
+        write_json(out_dir / "orderings.json", orderings)
     index = out_dir / "index.html"
     write_text(index, "\n".join(p for p in parts if p))
     return index
@@ -472,7 +475,7 @@ def _per_clip(evals: dict, variant: str, bench: str, method: str, metric: str) -
     e = evals.get((variant, bench)) or {}
     out = {}
     for p in e.get("pairs") or []:
-        v = (p.get(method) or {}).get(metric) if isinstance(p.get(method), dict) else None
+        v = p[method].get(metric) if isinstance(p.get(method), dict) else None
         if p.get("pair_id") is not None and v is not None and np.isfinite(v):
             out[str(p["pair_id"])] = float(v)
     return out
@@ -509,11 +512,11 @@ def ordering_checks(evals: dict, metric: str = "psnr_db") -> list[dict]:
     return out
 
 
-def _ordering_checks(evals: dict) -> str:
-    """Which of the paper's orderings hold on this run (with the numbers)."""
+def _ordering_checks(orderings: list[dict]) -> str:
+    """Which of the paper's orderings hold on this run (with the numbers), from :func:`ordering_checks`."""
     rows = [{"ordering (PSNR)": r["ordering"], "left dB": r.get("left_mean"), "right dB": r.get("right_mean"),
              "difference dB [95 % CI]": _diff_text(r), "paired clips": r.get("clips"), "verdict": r["verdict"]}
-            for r in ordering_checks(evals)]
+            for r in orderings]
     return ("<h3>The paper's orderings on this run</h3><p class='note'>difference = left − right over the clips "
             "both sides scored, 95 % paired bootstrap interval; holds / reversed when the interval excludes 0, "
             "inconclusive when it spans 0.</p>"
@@ -529,8 +532,9 @@ def _diff_text(r: dict) -> str:
     return f"{r['diff_mean']:+.2f} [{r['diff_low']:+.2f}, {r['diff_high']:+.2f}]"
 
 
-def tables_markdown(evals: dict) -> str:
-    """Table 1, Table 2 and the orderings in Markdown (``results/report/tables.md``), for a README or a note."""
+def tables_markdown(evals: dict, orderings: list[dict] | None = None) -> str:
+    """Table 1, Table 2 and the orderings (:func:`ordering_checks`, computed here unless given) in Markdown
+    (``results/report/tables.md``), for a README or a note."""
     v0 = _first_variant(evals)
     if v0 is None:
         return "_Tables 1 and 2: not computed (no results/eval/*/*/metrics.json)_\n"
@@ -541,12 +545,12 @@ def tables_markdown(evals: dict) -> str:
              metrics_table_markdown(evals, [(VARIANT_LABELS.get(v, v), v, "refined") for v in _variants(evals)]),
              "\nThe paper's orderings (PSNR; left − right over the same clips, 95 % paired bootstrap interval)\n",
              "| ordering | left dB | right dB | difference dB | clips | verdict |", "| --- | ---: | ---: | ---: | ---: | --- |"]
-    for r in ordering_checks(evals):
+    for r in orderings if orderings is not None else ordering_checks(evals):
         lm, rm = r.get("left_mean"), r.get("right_mean")
         parts.append(f"| {r['ordering']} | {'' if lm is None else f'{lm:.2f}'} | {'' if rm is None else f'{rm:.2f}'} | "
                      f"{_diff_text(r)} | {r.get('clips', '')} | {r['verdict']} |")
-    notes = {k: w for e in evals.values() for k, w in (e.get("not_computed") or {}).items()}
-    parts += [f"\n{METRIC_LABELS.get(k, (k,))[0]}: not computed ({w})." for k, w in sorted(notes.items())]
+    parts += [f"\n{METRIC_LABELS.get(k, (k,))[0]}: not computed ({w})."
+              for k, w in sorted(_not_computed_metrics(evals).items())]
     return "\n".join(parts) + "\n"
 
 
