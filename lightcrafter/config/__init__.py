@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from .scenes import ConfigError
+from ..scenes import ConfigError
 
 
 def _key_path(err) -> str:
@@ -42,7 +42,7 @@ def check_semantics(config: dict, source: str = "config") -> None:
     """Checks a schema cannot express: combinations of keys that make a scene impossible,
     and the refiner's own key-by-key validation."""
     if "refiner" in config:
-        from .refiner.config import resolve_config
+        from ..refiner.config import resolve_config
 
         try:
             resolve_config({k: v for k, v in config["refiner"].items() if k != "resources"})
