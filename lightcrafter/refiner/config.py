@@ -1,13 +1,20 @@
-"""Refiner configuration: one plain dict, two presets (``tiny`` and ``paper``).
+"""Refiner configuration: pydantic models (:class:`RefinerSettings`), two presets (``tiny`` and ``paper``).
 
-Every key is documented in :data:`KEY_DOCS`. A run's config is ``resolve_config(overrides)``:
-the preset named by ``overrides["preset"]`` (default ``tiny``) deep-merged with the overrides.
-Unknown top-level keys are an error so that typos do not silently fall back to defaults.
+The models are the only definition of the refiner's keys, types, ranges, defaults and docs (the
+workflow's ``refiner`` section is this model; config/README.md is generated from it). A run's config
+is ``resolve_config(overrides)``: the model's defaults, the preset named by ``overrides["preset"]``
+(default ``tiny`` here; the workflow's default is ``paper``) and the overrides, deep-merged and
+validated; the result is a plain dict. Unknown keys at any depth are an error, so a typo never falls
+back to a default.
 """
 
 from __future__ import annotations
 
 import copy
+from typing import Literal, Optional, Union
+
+from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
+                      ValidationError, model_validator)
 
 # CogVideoX-5B(-I2V) scheduler_config.json, as published with the checkpoint. The diffusers class
 # defaults differ (epsilon, leading, snr_shift 3.0), so the parameterisation is always set from here
@@ -49,84 +56,185 @@ TINY_TRANSFORMER: dict = {
     "use_learned_positional_embeddings": False,
 }
 
-_BASE: dict = {
-    "preset": "tiny",
-    "seed": 0,
-    # --- model
-    "model": {
-        "kind": "tiny",  # tiny: random-init transformer + DCT patch autoencoder; paper: local CogVideoX-5B-I2V
-        "model_path": None,  # local diffusers folder of CogVideoX-5B-I2V (paper)
-        "dtype": "float32",  # float32 | bfloat16
-        "gradient_checkpointing": False,
-        "vae_slicing": False,
-        "vae_tiling": False,
-        "transformer": copy.deepcopy(TINY_TRANSFORMER),
-        "ae_coeffs": [40, 12, 12],  # tiny autoencoder: DCT coefficients kept per 4x8x8 block for
-        # (luma, chroma1, chroma2); latent channels = their sum
-        "ae_normalisation": "channel",  # tiny autoencoder: channel (unit variance per channel) | global
-        "empty_prompt_cache": None,  # path of the cached empty-prompt embedding (.pt); paper only
-        "proxy_anchor": "none",  # none (paper: the network outputs v) | x0 | v: identity at initialisation
-        "anchor_affine": False,  # anchor = learned per-latent-channel affine map of the proxy (identity at init)
-    },
-    # --- diffusion parameterisation (see COGVIDEOX_5B_SCHEDULER)
-    "scheduler": copy.deepcopy(COGVIDEOX_5B_SCHEDULER),
-    # --- training
-    "train": {
-        "lr": 1e-3,  # tiny default (trains from scratch); the paper fine-tunes with 1e-5 (preset "paper")
-        "weight_decay": 1e-2,
-        "adam_betas": [0.9, 0.999],
-        "batch_size": 1,
-        "grad_accum": 4,
-        "max_steps": 400,  # optimizer steps
-        "warmup_steps": 20,
-        "max_grad_norm": 1.0,
-        "proxy_dropout": 0.1,  # probability of zeroing the proxy latent (enables CFG on the proxy)
-        "cond_noise_log_sigma_mean": -3.0,  # log sigma ~ N(mean, std) on proxy pixels in [-1, 1]
-        "cond_noise_log_sigma_std": 0.5,
-        "latent_window": 3,  # latent frames per training crop (paper: 13 = 49 pixel frames)
-        "timesteps": "all",  # all (paper: uniform over the 1000 training steps) | sampler_range
-        "hflip": False,  # mirror training samples left-right with probability 1/2
-        "anchor_lr": None,  # learning rate of the anchor's affine map (null = train.lr)
-        "checkpoint_every": 50,  # optimizer steps
-        "log_every": 1,
-    },
-    # --- inference
-    "infer": {
-        "num_steps": 50,
-        "strength": 1.0,  # SDEdit: 1 = start from pure noise (paper); s < 1 starts from the noised proxy
-        "guidance_scale": 6.0,
-        # weight of the transformer's correction F on top of the proxy anchor (model.proxy_anchor != none):
-        # 1 = the trained model; 0 = the anchor alone (the learned latent map of the proxy, no transformer
-        # call). Chosen on validation through select.residual_scales; ignored without an anchor.
-        "residual_scale": 1.0,
-        "num_samples": 1,  # refined = mean of this many samples (different noise); 1 = one sample (paper)
-        "sampler": "ddim",  # ddim | dpm (CogVideoXDPMScheduler: stochastic, carries previous x0)
-        "window": 3,  # latent frames per tile (paper: 13)
-        "overlap": 1,  # latent frames shared by neighbouring tiles (paper: 3)
-        "min_tent_weight": 0.1,  # tent weight at a tile's outermost frame (> 0)
-        "pad_frames": "error",  # error | repeat_last: what to do when the frame count is not 4k+1
-    },
-    "data": {
-        "exposure_ev": 0.0,  # display transform exposure (io.linear_to_display)
-        "max_train_pairs": None,
-        "cache_pixels": True,  # keep decoded proxy/target frames in memory (exact; off at paper scale)
-    },
-    # --- model selection on validation scenes carved out of the train split (never test)
-    "select": {
-        "val_scenes": 0,  # 0 = no selection (paper: infer.* as configured); n >= 1 scenes, or a fraction < 1
-        "max_val_pairs": 4,  # validation clips evaluated per candidate (cost)
-        "checkpoints": [],  # optimizer steps whose weights are candidates (the last step always is)
-        "strengths": [1.0],
-        "guidance_scales": [6.0],
-        "residual_scales": [1.0],  # candidate infer.residual_scale values (only with a proxy anchor)
-        "metric": "psnr_db",  # psnr_db | ssim: mean over validation clips, higher is better
-    },
-    # --- baselines trained and evaluated beside the refiner (same data, same network)
-    "baselines": {
-        "regressor_steps": 0,  # optimizer steps of the one-step regressor (same network, L2 on x0); 0 = off
-        "affine_colour": False,  # per-channel affine colour fit of proxy to target on the training pairs
-    },
-}
+class _Section(BaseModel):
+    """A refiner config section: unknown keys are an error, values are checked on assignment too."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class RefinerModelSettings(_Section):
+    kind: Literal["tiny", "paper"] = Field(
+        "tiny", description="tiny (random-init transformer, DCT patch autoencoder, CPU) | paper (CogVideoX-5B-I2V "
+        "from model_path)")
+    model_path: Optional[str] = Field(
+        None, description="local diffusers folder of CogVideoX-5B-I2V (subfolders transformer/ vae/ text_encoder/ "
+        "tokenizer/ scheduler/); required for kind=paper, never downloaded")
+    dtype: Literal["float32", "bfloat16"] = Field("float32", description="float32 | bfloat16 (paper)")
+    gradient_checkpointing: bool = Field(False, description="recompute transformer activations in backward (paper: true)")
+    vae_slicing: bool = Field(False, description="VAE encodes/decodes the batch one sample at a time (paper)")
+    vae_tiling: bool = Field(False, description="VAE works in spatial tiles (paper)")
+    transformer: Optional[dict] = Field(
+        default_factory=lambda: copy.deepcopy(TINY_TRANSFORMER),
+        description="CogVideoXTransformer3DModel kwargs for kind=tiny (in/out channels are derived); null for "
+        "kind=paper (read from the checkpoint)")
+    ae_coeffs: list[PositiveInt] = Field(
+        [40, 12, 12], min_length=3, max_length=3,
+        description="tiny autoencoder: DCT coefficients per 4x8x8 block for [luma, chroma1, chroma2] (latent "
+        "channels = sum; [256, 256, 256] = lossless); the paper VAE has 16 latent channels")
+    ae_normalisation: Literal["channel", "global"] = Field(
+        "channel", description="tiny autoencoder latent scaling: channel (each channel to unit variance) | global "
+        "(one scale, like the CogVideoX VAE's scaling factor: latent L2 = pixel L2 up to a constant)")
+    empty_prompt_cache: Optional[str] = Field(
+        None, description="file caching the T5 embedding of the empty prompt (.pt; paper)")
+    proxy_anchor: Literal["none", "x0", "v"] = Field(
+        "none", description="none (paper: the network's output is v) | x0: x0_hat = proxy latent + F, i.e. "
+        "v = v_anchor - F / sqrt(1 - abar_t) | v: v = v_anchor + F; v_anchor is the v whose x0 estimate is the "
+        "proxy latent, F's output projection is zero-initialised, so an untrained model returns the proxy. "
+        "The anchor uses the proxy in both CFG branches (guidance acts on F's proxy input)")
+    anchor_affine: bool = Field(
+        False, description="with a proxy anchor: the anchor is a learned per-latent-channel affine map of the proxy "
+        "latent (gain and bias per channel, zero-initialised: still the identity at initialisation), trained with "
+        "the network by the same loss; for the DCT autoencoder a per-frequency linear filter of the proxy")
+
+
+class RefinerTrainSettings(_Section):
+    lr: PositiveFloat = Field(1e-3, description="AdamW learning rate (paper 1e-5; tiny 3e-4 because it trains "
+                              "from scratch)")
+    weight_decay: NonNegativeFloat = Field(1e-2, description="AdamW weight decay")
+    adam_betas: list[float] = Field([0.9, 0.999], min_length=2, max_length=2, description="AdamW betas")
+    batch_size: PositiveInt = Field(1, description="pairs per micro-batch (paper: 1)")
+    grad_accum: PositiveInt = Field(4, description="micro-batches per optimizer step (paper: 4)")
+    max_steps: PositiveInt = Field(400, description="optimizer steps to train")
+    warmup_steps: NonNegativeInt = Field(20, description="linear LR warm-up, optimizer steps")
+    max_grad_norm: PositiveFloat = Field(1.0, description="gradient clipping norm")
+    proxy_dropout: float = Field(0.1, ge=0, le=1, description="probability of zeroing the proxy latent in a "
+                                 "training sample (enables CFG on the proxy)")
+    cond_noise_log_sigma_mean: float = Field(-3.0, description="mean of log sigma of pixel-space proxy noise "
+                                             "(images in [-1, 1]; paper: -3)")
+    cond_noise_log_sigma_std: NonNegativeFloat = Field(0.5, description="std of log sigma of pixel-space proxy "
+                                                       "noise (paper: 0.5)")
+    latent_window: PositiveInt = Field(3, description="latent frames per training crop, cropped from the globally "
+                                       "encoded clip (paper: 13 = 49 pixel frames)")
+    timesteps: Literal["all", "sampler_range"] = Field(
+        "all", description="all (uniform over the scheduler's training steps, paper) | sampler_range: uniform over "
+        "[last timestep the sampler visits at infer.num_steps, first timestep at the largest strength in "
+        "select.strengths and infer.strength]")
+    hflip: bool = Field(False, description="augmentation: mirror each training sample (proxy and target) left-right "
+                        "with probability 1/2")
+    anchor_lr: Optional[PositiveFloat] = Field(None, description="AdamW learning rate of the anchor's affine map "
+                                               "(no weight decay); null = train.lr")
+    checkpoint_every: PositiveInt = Field(50, description="optimizer steps between checkpoints")
+    log_every: PositiveInt = Field(1, description="optimizer steps between log lines")
+
+
+class RefinerInferSettings(_Section):
+    num_steps: PositiveInt = Field(50, description="denoising steps, trailing spacing (paper: 50)")
+    strength: float = Field(
+        1.0, ge=0, le=1, description="SDEdit strength in [0, 1]: keep int(num_steps * strength) steps and start "
+        "from the proxy latent noised to the first kept timestep; 1 = pure noise (paper); 0 = the proxy through the "
+        "autoencoder. Chosen on validation when select.val_scenes > 0")
+    guidance_scale: NonNegativeFloat = Field(
+        6.0, description="classifier-free guidance on the proxy latent (paper: 6.0); 1 disables the unconditional "
+        "pass. Chosen on validation when select.val_scenes > 0")
+    residual_scale: float = Field(
+        1.0, ge=0, le=1, description="weight in [0, 1] of the transformer's correction on top of the proxy anchor "
+        "(0 = anchor alone, no transformer call); ignored without an anchor")
+    num_samples: PositiveInt = Field(
+        1, description="the refined video is the pixel-wise mean of this many samples drawn with successive noise "
+        "from the run's generator (a posterior-mean estimate, which PSNR/SSIM reward); 1 = a single sample (paper)")
+    sampler: Literal["ddim", "dpm"] = Field(
+        "ddim", description="ddim (CogVideoXDDIMScheduler, deterministic) | dpm (CogVideoXDPMScheduler, stochastic; "
+        "the paper's 'full DPM solver')")
+    window: PositiveInt = Field(3, description="latent frames per temporal tile (paper 13 = 49 pixel frames)")
+    overlap: NonNegativeInt = Field(1, description="latent frames shared by neighbouring tiles (paper 3 = 12 pixel "
+                                    "frames)")
+    min_tent_weight: PositiveFloat = Field(0.1, description="tent weight at a tile's edge frame, > 0 so every frame "
+                                           "is defined")
+    pad_frames: Literal["error", "repeat_last"] = Field(
+        "error", description="error | repeat_last: frame counts that are not 4k+1 raise, or are padded then cropped")
+
+    @model_validator(mode="after")
+    def _overlap_below_window(self):
+        if not self.overlap < self.window:
+            raise ValueError(f"infer.overlap={self.overlap} must be in [0, window={self.window})")
+        return self
+
+
+class RefinerDataSettings(_Section):
+    exposure_ev: float = Field(0.0, description="exposure (EV) of the display transform applied to proxy and "
+                               "target alike")
+    max_train_pairs: Optional[PositiveInt] = Field(None, description="use at most this many training pairs "
+                                                   "(null = all)")
+    cache_pixels: bool = Field(True, description="keep decoded frames of training pairs in memory (exact); false "
+                               "at paper scale")
+
+
+class RefinerSelectSettings(_Section):
+    val_scenes: Union[NonNegativeInt, NonNegativeFloat] = Field(
+        0, description="validation scenes carved out of the train split by whole scene (scene_id, else clip_id), "
+        "deterministic in seed: an integer count, or a fraction < 1 of the train-split scenes (at least 1); "
+        "0 = no selection (paper). Needs at least 2 train-split scenes, else selection is skipped and logged")
+    max_val_pairs: PositiveInt = Field(4, description="validation clips evaluated per candidate setting (the first "
+                                       "n in pair-id order)")
+    checkpoints: list[PositiveInt] = Field([], description="optimizer steps whose weights are candidate models "
+                                           "besides the last step")
+    strengths: list[float] = Field([1.0], min_length=1, description="candidate infer.strength values")
+    guidance_scales: list[NonNegativeFloat] = Field([6.0], min_length=1, description="candidate "
+                                                    "infer.guidance_scale values")
+    residual_scales: list[float] = Field([1.0], min_length=1, description="candidate infer.residual_scale values "
+                                         "(0 = the learned anchor alone; only with a proxy anchor)")
+    metric: Literal["psnr_db", "ssim"] = Field("psnr_db", description="psnr_db | ssim: the validation score (mean "
+                                               "over clips) that picks checkpoint, strength, guidance")
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        v = float(self.val_scenes)
+        if v >= 1 and v % 1:
+            raise ValueError(f"select.val_scenes={self.val_scenes}: an integer count >= 0 or a fraction in (0, 1)")
+        for s in self.strengths:
+            if not 0.0 <= s <= 1.0:
+                raise ValueError(f"select.strengths: {s} must be in [0, 1]")
+        for r in self.residual_scales:
+            if not 0.0 <= r <= 1.0:
+                raise ValueError(f"select.residual_scales: {r} must be in [0, 1]")
+        return self
+
+
+class RefinerBaselineSettings(_Section):
+    regressor_steps: NonNegativeInt = Field(
+        0, description="optimizer steps of the one-step deterministic regressor (same network and anchor, proxy "
+        "latent in both inputs, fixed timestep, L2 on the x0 latent); 0 = not trained. The workflow trains the "
+        "baselines with the first of datasets.variants only (they are Table 1 methods)")
+    affine_colour: bool = Field(
+        False, description="fit a per-channel affine map proxy -> target (display values, least squares over the fit "
+        "pairs) and evaluate it as a baseline")
+
+
+class RefinerSettings(_Section):
+    """The refiner's config: the preset named by ``preset`` supplies the base values (PRESETS), the rest
+    of the dict overrides them. ``resolve_config`` returns it as a plain dict."""
+
+    preset: Literal["tiny", "paper"] = Field(
+        "tiny", description="tiny: random-init CogVideoX transformer + DCT patch autoencoder on the CPU, with what a "
+        "small model trained from scratch needs (SDEdit start, proxy anchor, validation selection, baselines); "
+        "paper: CogVideoX-5B-I2V from model.model_path (bf16, gradient checkpointing, VAE slicing/tiling), "
+        "pure-noise sampling, no anchor, no selection, no baselines. Base values the rest of the section overrides")
+    seed: NonNegativeInt = Field(0, description="integer seed of every random draw in training and inference")
+    model: RefinerModelSettings = Field(default_factory=RefinerModelSettings)
+    scheduler: dict = Field(default_factory=lambda: copy.deepcopy(COGVIDEOX_5B_SCHEDULER),
+                            description="diffusers CogVideoX scheduler kwargs (defaults: CogVideoX-5B's "
+                            "scheduler_config.json)")
+    train: RefinerTrainSettings = Field(default_factory=RefinerTrainSettings)
+    infer: RefinerInferSettings = Field(default_factory=RefinerInferSettings)
+    data: RefinerDataSettings = Field(default_factory=RefinerDataSettings)
+    select: RefinerSelectSettings = Field(default_factory=RefinerSelectSettings)
+    baselines: RefinerBaselineSettings = Field(default_factory=RefinerBaselineSettings)
+
+
+def _base() -> dict:
+    """Every key of the refiner config with the model's default (before a preset is applied)."""
+    return RefinerSettings().model_dump()
+
 
 # What a small model trained from scratch on a few clips needs (lightcrafter/refiner/__init__.py,
 # "Small scale"): start from the noised proxy (SDEdit), predict a correction of the proxy (identity
@@ -152,88 +260,13 @@ PRESETS: dict[str, dict] = {
             "vae_tiling": True,
             "transformer": None,  # read from the checkpoint
         },
-        "train": {"lr": 1e-5, "warmup_steps": 0, "latent_window": 13, "max_steps": 10000, "checkpoint_every": 500},
+        # 48 h of training (the paper) as optimizer steps: 2,000 at ~83 s per step on one A6000 (derivation in
+        # docs/paper_numbers.md; scale by the GPU count under data parallelism)
+        "train": {"lr": 1e-5, "warmup_steps": 0, "latent_window": 13, "max_steps": 2000, "checkpoint_every": 200},
         "infer": {"window": 13, "overlap": 3, "sampler": "dpm"},  # paper: "full DPM solver", 50 steps
         "data": {"cache_pixels": False},
     },
 }
-
-KEY_DOCS: dict[str, str] = {
-    "preset": "tiny | paper: base values the rest of the dict overrides",
-    "seed": "integer seed of every random draw in training and inference",
-    "model.kind": "tiny (random-init transformer, DCT patch autoencoder, CPU) | paper (CogVideoX-5B-I2V from model_path)",
-    "model.model_path": "local diffusers folder of CogVideoX-5B-I2V; required for kind=paper, never downloaded",
-    "model.dtype": "float32 | bfloat16 (paper)",
-    "model.gradient_checkpointing": "recompute transformer activations in backward (paper: true)",
-    "model.vae_slicing": "VAE encodes/decodes the batch one sample at a time (paper)",
-    "model.vae_tiling": "VAE works in spatial tiles (paper)",
-    "model.transformer": "CogVideoXTransformer3DModel kwargs for kind=tiny (in/out channels are derived)",
-    "model.ae_coeffs": "tiny autoencoder: DCT coefficients per 4x8x8 block for [luma, chroma1, chroma2] "
-    "(latent channels = sum; [256, 256, 256] = lossless); the paper VAE has 16 latent channels",
-    "model.anchor_affine": "with a proxy anchor: the anchor is a learned per-latent-channel affine map of the proxy "
-    "latent (gain and bias per channel, zero-initialised: still the identity at initialisation), trained with "
-    "the network by the same loss; for the DCT autoencoder a per-frequency linear filter of the proxy",
-    "model.ae_normalisation": "tiny autoencoder latent scaling: channel (each channel to unit variance) | global "
-    "(one scale, like the CogVideoX VAE's scaling factor: latent L2 = pixel L2 up to a constant)",
-    "model.empty_prompt_cache": "file caching the T5 embedding of the empty prompt (paper)",
-    "model.proxy_anchor": "none (paper: the network's output is v) | x0: x0_hat = proxy latent + F, i.e. "
-    "v = v_anchor - F / sqrt(1 - abar_t) | v: v = v_anchor + F; v_anchor is the v whose x0 estimate is the "
-    "proxy latent, F's output projection is zero-initialised, so an untrained model returns the proxy. "
-    "The anchor uses the proxy in both CFG branches (guidance acts on F's proxy input)",
-    "scheduler": "diffusers CogVideoX scheduler kwargs (defaults: CogVideoX-5B's scheduler_config.json)",
-    "train.lr": "AdamW learning rate (paper 1e-5; tiny default 1e-3 because it trains from scratch)",
-    "train.weight_decay": "AdamW weight decay",
-    "train.adam_betas": "AdamW betas",
-    "train.batch_size": "pairs per micro-batch (1)",
-    "train.grad_accum": "micro-batches per optimizer step (4)",
-    "train.max_steps": "optimizer steps to train",
-    "train.warmup_steps": "linear LR warm-up, optimizer steps",
-    "train.max_grad_norm": "gradient clipping norm",
-    "train.proxy_dropout": "probability of zeroing the proxy latent in a training sample",
-    "train.cond_noise_log_sigma_mean": "mean of log sigma of pixel-space proxy noise (images in [-1, 1])",
-    "train.cond_noise_log_sigma_std": "std of log sigma of pixel-space proxy noise",
-    "train.latent_window": "latent frames per training crop (cropped from the globally encoded clip)",
-    "train.anchor_lr": "AdamW learning rate of the anchor's affine map (no weight decay); null = train.lr",
-    "train.hflip": "augmentation: mirror each training sample (proxy and target) left-right with probability 1/2",
-    "train.timesteps": "all (uniform over the scheduler's training steps, paper) | sampler_range: uniform over "
-    "[last timestep the sampler visits at infer.num_steps, first timestep at the largest strength in "
-    "select.strengths and infer.strength]",
-    "train.checkpoint_every": "optimizer steps between checkpoints",
-    "train.log_every": "optimizer steps between log lines",
-    "infer.num_steps": "denoising steps (50)",
-    "infer.strength": "SDEdit strength in [0, 1]: keep int(num_steps * strength) steps and start from the proxy "
-    "latent noised to the first kept timestep; 1 = pure noise (paper); 0 = the proxy through the autoencoder. "
-    "Chosen on validation when select.val_scenes > 0",
-    "infer.guidance_scale": "classifier-free guidance on the proxy latent (6.0); 1 disables the unconditional pass. "
-    "Chosen on validation when select.val_scenes > 0",
-    "infer.num_samples": "the refined video is the pixel-wise mean of this many samples drawn with successive "
-    "noise from the run's generator: an estimate of the posterior mean, which PSNR/SSIM reward; 1 = a single "
-    "sample (paper). Costs num_samples x the sampling time",
-    "infer.sampler": "ddim (CogVideoXDDIMScheduler, deterministic) | dpm (CogVideoXDPMScheduler, stochastic)",
-    "infer.window": "latent frames per temporal tile (paper 13 = 49 pixel frames)",
-    "infer.overlap": "latent frames shared by neighbouring tiles (paper 3 = 12 pixel frames)",
-    "infer.min_tent_weight": "tent weight at a tile's edge frame, > 0 so every frame is defined",
-    "infer.pad_frames": "error | repeat_last: frame counts that are not 4k+1 raise, or are padded then cropped",
-    "data.exposure_ev": "exposure (EV) of the display transform applied to proxy and target alike",
-    "data.max_train_pairs": "use at most this many training pairs (null = all)",
-    "data.cache_pixels": "keep decoded frames of training pairs in memory (exact); false at paper scale",
-    "select.val_scenes": "validation scenes carved out of the train split by whole scene (scene_id, else clip_id), "
-    "deterministic in seed: an integer count, or a fraction < 1 of the train-split scenes (at least 1); "
-    "0 = no selection. Needs at least 2 train-split scenes, else selection is skipped and logged",
-    "select.max_val_pairs": "validation clips evaluated per candidate setting (the first n in pair-id order)",
-    "select.checkpoints": "optimizer steps whose weights are candidate models besides the last step",
-    "select.strengths": "candidate infer.strength values",
-    "select.guidance_scales": "candidate infer.guidance_scale values",
-    "select.residual_scales": "candidate infer.residual_scale values (0 = the learned anchor alone)",
-    "infer.residual_scale": "weight in [0, 1] of the transformer's correction on top of the proxy anchor "
-    "(0 = anchor alone, no transformer call)",
-    "select.metric": "psnr_db | ssim: the validation score (mean over clips) that picks checkpoint, strength, guidance",
-    "baselines.regressor_steps": "optimizer steps of the one-step deterministic regressor (same network and "
-    "anchor, proxy latent in both inputs, fixed timestep, L2 on the x0 latent); 0 = not trained",
-    "baselines.affine_colour": "fit a per-channel affine map proxy -> target (display values, least squares over "
-    "the fit pairs) and evaluate it as a baseline",
-}
-
 
 def _merge(base: dict, over: dict, path: str = "") -> dict:
     out = copy.deepcopy(base)
@@ -250,43 +283,38 @@ def _merge(base: dict, over: dict, path: str = "") -> dict:
 
 
 def resolve_config(overrides: dict | None = None) -> dict:
-    """Defaults <- preset <- overrides (deep merge). Raises KeyError on unknown top-level keys."""
+    """Model defaults <- preset <- overrides (deep merge), validated by :class:`RefinerSettings`.
+
+    Returns a plain dict of every key. Raises KeyError naming an unknown key at any depth and
+    ValueError naming a key whose value has the wrong type or is out of range."""
     overrides = dict(overrides or {})
     preset = overrides.get("preset", "tiny")
     if preset not in PRESETS:
         raise KeyError(f"unknown refiner preset {preset!r}; choose one of {sorted(PRESETS)}")
-    cfg = _merge(_BASE, PRESETS[preset])
-    cfg = _merge(cfg, overrides)
-    inf = cfg["infer"]
-    if not (0 <= inf["overlap"] < inf["window"]):
-        raise ValueError(f"infer.overlap={inf['overlap']} must be in [0, window={inf['window']})")
-    if not inf["min_tent_weight"] > 0:
-        raise ValueError("infer.min_tent_weight must be > 0 (zero edge weights leave frames undefined)")
-    if inf["pad_frames"] not in ("error", "repeat_last"):
-        raise ValueError(f"infer.pad_frames={inf['pad_frames']!r}: use 'error' or 'repeat_last'")
-    sel = cfg["select"]
-    for s in [inf["strength"], *sel["strengths"]]:
-        if not 0.0 <= float(s) <= 1.0:
-            raise ValueError(f"strength {s}: must be in [0, 1] (infer.strength, select.strengths)")
-    if int(inf["num_samples"]) < 1:
-        raise ValueError(f"infer.num_samples={inf['num_samples']}: must be >= 1")
-    if cfg["model"]["ae_normalisation"] not in ("channel", "global"):
-        raise ValueError(f"model.ae_normalisation={cfg['model']['ae_normalisation']!r}: use 'channel' or 'global'")
-    if cfg["model"]["proxy_anchor"] not in ("none", "x0", "v"):
-        raise ValueError(f"model.proxy_anchor={cfg['model']['proxy_anchor']!r}: use 'none', 'x0' or 'v'")
-    if cfg["train"]["timesteps"] not in ("all", "sampler_range"):
-        raise ValueError(f"train.timesteps={cfg['train']['timesteps']!r}: use 'all' or 'sampler_range'")
-    if sel["metric"] not in ("psnr_db", "ssim"):
-        raise ValueError(f"select.metric={sel['metric']!r}: use 'psnr_db' or 'ssim'")
-    if float(sel["val_scenes"]) < 0 or (float(sel["val_scenes"]) >= 1 and float(sel["val_scenes"]) % 1):
-        raise ValueError(f"select.val_scenes={sel['val_scenes']}: an integer count >= 0 or a fraction in (0, 1)")
-    if not sel["strengths"] or not sel["guidance_scales"] or not sel["residual_scales"]:
-        raise ValueError("select.strengths, select.guidance_scales and select.residual_scales need at least one "
-                         "value each")
-    for r in [inf["residual_scale"], *sel["residual_scales"]]:
-        if not 0.0 <= float(r) <= 1.0:
-            raise ValueError(f"residual scale {r}: must be in [0, 1] (infer.residual_scale, select.residual_scales)")
+    base = _base()
+    cfg = _merge(_merge(base, PRESETS[preset]), overrides)
+    try:
+        cfg = RefinerSettings.model_validate(cfg).model_dump()
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(str(x) for x in err["loc"]) or "<refiner>"
+        raise ValueError(f"{key}: {err['msg']}") from None
     if cfg["model"]["proxy_anchor"] == "none":
         # without an anchor the transformer's output is the whole prediction: nothing to weigh
-        inf["residual_scale"], sel["residual_scales"] = 1.0, [1.0]
+        cfg["infer"]["residual_scale"], cfg["select"]["residual_scales"] = 1.0, [1.0]
     return cfg
+
+
+def key_docs(model: type[BaseModel] = RefinerSettings, prefix: str = "") -> dict[str, str]:
+    """{dotted key: description} of every documented key of ``model`` (sub-models flattened)."""
+    out: dict[str, str] = {}
+    for name, f in model.model_fields.items():
+        ann = f.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            out.update(key_docs(ann, f"{prefix}{name}."))
+        elif f.description:
+            out[prefix + name] = f.description
+    return out
+
+
+KEY_DOCS: dict[str, str] = key_docs()
