@@ -26,6 +26,9 @@ def units(cfg: dict) -> dict[str, tuple[str, float, int]]:
     refiner_trajs = [t for sp, t in trajs if sp in ("train", "test")]
     spp, pspp = cfg["render"]["spp"], cfg["proxy"]["spp"]
     real = sum(len(v.get("start_frames") or []) or int(v.get("clips", 1)) for v in cfg.get("real", {}).get("videos", []))
+    d = cfg.get("real", {}).get("dl3dv") or {}
+    if d.get("root"):  # planned DL3DV clips (the folder need not exist where the report is built)
+        real += int(d.get("max_scenes") or 0) * int(d.get("clips_per_scene", 1))
     return {
         "sample_scene": ("scenes", len(plans), len(plans)),
         "render_rgb": ("frame x megapixel x spp", rgb_jobs * n * px / 1e6 * spp, rgb_jobs),

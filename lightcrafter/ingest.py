@@ -30,6 +30,7 @@ reason; datasets leave it out and count it) or ``error``.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import re
 from pathlib import Path
@@ -65,10 +66,46 @@ def clip_stem(ref: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "_", stem).strip("_") or "video"
 
 
-def real_clips(real_cfg: dict, num_frames: int | None = None) -> dict[str, dict]:
-    """{clip_id: {video, split, chunk, start_frame, frame_step, fov_x_deg}} from config alone (no file access)."""
+def dl3dv_scenes(root: str | Path) -> list[Path]:
+    """Scene folders of a DL3DV folder: each holds one of :data:`DL3DV_FOLDERS`, at depth 1
+    (``root/<scene>/images_4``) or 2 (``root/1K/<scene>/images_4``, DL3DV-10K's batches). Sorted by path
+    under ``root``; reads folder listings only."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+
+    def is_scene(d: Path) -> bool:
+        return any((d / sub).is_dir() for sub in DL3DV_FOLDERS)
+
+    found = []
+    for d in sorted(p for p in root.iterdir() if p.is_dir()):
+        if is_scene(d):
+            found.append(d)
+        else:
+            found += [e for e in sorted(q for q in d.iterdir() if q.is_dir()) if is_scene(e)]
+    return found
+
+
+def dl3dv_videos(d: dict, seed: int = 0) -> list[dict]:
+    """``real.videos`` entries for ``real.dl3dv`` ({root, max_scenes, clips_per_scene, frame_step,
+    test_fraction, fov_x_deg}): the first max_scenes scene folders; a seeded choice by scene path (not
+    by position, so adding scenes moves no other scene) holds out round(test_fraction x n) as test."""
+    if not d or not d.get("root"):
+        return []
+    root = Path(d["root"])
+    scenes = dl3dv_scenes(root)[: d.get("max_scenes") or None]
+    rank = sorted(scenes, key=lambda p: hashlib.sha256(f"{seed}:{p.relative_to(root).as_posix()}".encode()).hexdigest())
+    test = set(rank[: round(float(d.get("test_fraction", 0.0)) * len(scenes))])
+    return [{"path": str(p), "split": "test" if p in test else "train", "clips": int(d.get("clips_per_scene", 1)),
+             "frame_step": int(d.get("frame_step", 1)), "start_frame": 0, "fov_x_deg": float(d.get("fov_x_deg", 60.0)),
+             "camera_static": False} for p in scenes]
+
+
+def real_clips(real_cfg: dict, num_frames: int | None = None, seed: int = 0) -> dict[str, dict]:
+    """{clip_id: {video, split, chunk, start_frame, frame_step, fov_x_deg}} from config alone (``real.videos``
+    and the scene folders of ``real.dl3dv``; no video is read)."""
     out: dict[str, dict] = {}
-    for v in real_cfg.get("videos", []) or []:
+    for v in [*(real_cfg.get("videos", []) or []), *dl3dv_videos(real_cfg.get("dl3dv") or {}, seed)]:
         stem = clip_stem(v["path"])
         starts = v.get("start_frames")
         n_clips = len(starts) if starts else int(v.get("clips", 1))
@@ -76,11 +113,13 @@ def real_clips(real_cfg: dict, num_frames: int | None = None) -> dict[str, dict]
             cid = f"{stem}_f{int(starts[k])}" if starts else f"{stem}_c{k}"
             if cid in out:
                 raise io.DataError(f"real.videos: two videos give clip id {cid!r}; rename one of the files")
+            fov = v.get("fov_x_deg")
+            static = v.get("scene_static")
             out[cid] = {"video": str(v["path"]), "split": v.get("split", "train"), "chunk": 0 if starts else k,
                         "start_frame": int(starts[k]) if starts else int(v.get("start_frame", 0)),
                         "frame_step": int(v.get("frame_step", 1)),
-                        "fov_x_deg": float(v.get("fov_x_deg", real_cfg.get("fov_x_deg", 60.0))),
-                        "scene_static": bool(v.get("scene_static", real_cfg.get("scene_static", True))),
+                        "fov_x_deg": float(fov if fov is not None else real_cfg.get("fov_x_deg", 60.0)),
+                        "scene_static": bool(static if static is not None else real_cfg.get("scene_static", True)),
                         "camera_static": bool(v.get("camera_static", False))}
     return out
 
