@@ -1,15 +1,12 @@
 # LightCrafter: synthetic scenes -> ground truth -> Phi -> proxies -> pairs -> refiner -> evaluation.
-# Configuration: config/config.yaml (laptop default) or config/paper.yaml (paper scale);
-# every key is documented in config/README.md and validated against workflow/schemas/.
+# Configuration: --configfile config/paper.yaml (the paper's run) or none (config/config.yaml, the laptop
+# rehearsal); the typed models in lightcrafter/config/models.py define every key (config/README.md),
+# and workflow/rules/common.smk validates and checks the config before any job starts.
 from pathlib import Path
 
 from snakemake.utils import min_version
 
 min_version("9.0")
-
-
-# The default config sits beside this file, whatever the working directory (--directory).
-configfile: str(Path(workflow.basedir) / "config" / "config.yaml")
 
 
 include: "workflow/rules/common.smk"
@@ -48,7 +45,7 @@ rule ablations:
     input:
         [
             L.eval_metrics(v, b)
-            for v in ("full", "no_real", "no_synthetic", "clean_buffers")
+            for v in ds.VARIANTS
             for b in BENCHMARKS
         ],
 

@@ -39,14 +39,18 @@ class Variant:
     kinds: tuple[str, ...]
     synthetic_proxy: str = "proxy"
     doc: str = ""
+    label: str = ""  # the report's row label
 
 
 VARIANTS: dict[str, Variant] = {
-    "full": Variant(("synthetic", "real"), "proxy", "artifact-matched synthetic pairs + real pseudo-pairs (the paper)"),
-    "no_real": Variant(("synthetic",), "proxy", "artifact-matched synthetic pairs only (ablation: no real data)"),
-    "no_synthetic": Variant(("real",), "proxy", "real pseudo-pairs only (ablation: no synthetic data)"),
+    "full": Variant(("synthetic", "real"), "proxy", "artifact-matched synthetic pairs + real pseudo-pairs (the paper)",
+                    "Ours (full)"),
+    "no_real": Variant(("synthetic",), "proxy", "artifact-matched synthetic pairs only (ablation: no real data)",
+                       "Ours (no real)"),
+    "no_synthetic": Variant(("real",), "proxy", "real pseudo-pairs only (ablation: no synthetic data)",
+                            "Ours (no synthetic)"),
     "clean_buffers": Variant(("synthetic",), "proxy_gt", "synthetic pairs with proxies from ground-truth buffers "
-                             "(ablation: no artifact matching)"),
+                             "(ablation: no artifact matching)", "Ours (clean buffers: no artifact matching)"),
 }
 BENCHMARKS = ("synthetic", "real", "mit")
 REFINER_SPLITS = ("train", "test")

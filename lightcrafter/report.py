@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .io import atomic_path, read_json, write_json, write_text
+from .datasets import VARIANTS
 
 METRIC_LABELS = {"psnr_db": ("PSNR", True), "ssim": ("SSIM", True), "lpips": ("LPIPS", False),
                  "t_clip": ("T-CLIP", True), "warp_ssim": ("Warp-SSIM", True)}
@@ -37,8 +38,8 @@ TABLE_METRICS = {"synthetic": ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim"
 METHOD_LABELS = {"proxy": "PBR proxy (Phi buffers)", "oracle_proxy": "PBR proxy (ground-truth buffers)",
                  "refined": "Refined (LightCrafter)", "regressor": "One-step regressor (same network)",
                  "affine_colour": "Affine colour fit of the proxy"}
-VARIANT_LABELS = {"full": "Ours (full)", "no_real": "Ours (no real)", "no_synthetic": "Ours (no synthetic)",
-                  "clean_buffers": "Ours (clean buffers: no artifact matching)"}
+# Row labels and order of Table 2: the dataset-variant registry (lightcrafter.datasets.VARIANTS).
+VARIANT_LABELS = {name: v.label or name for name, v in VARIANTS.items()}
 CSS = """body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1250px;color:#222;line-height:1.4}
 h1{margin-bottom:0}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:2em}
 table{border-collapse:collapse;margin:.6em 0;font-size:.92em}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
@@ -296,7 +297,7 @@ def side_by_side_video(folders: list[Path], out: Path, fps: float = 12.0, scale:
 
 # ----------------------------------------------------------------------------- report
 def _variants(evals: dict) -> list[str]:
-    return [v for v in ("full", "no_real", "no_synthetic", "clean_buffers") if any(k[0] == v for k in evals)]
+    return [v for v in VARIANTS if any(k[0] == v for k in evals)]
 
 
 def _first_variant(evals: dict) -> str | None:

@@ -20,3 +20,23 @@ def run(main) -> None:
     except (DataError, ConfigError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(1)
+
+
+def json_arg(text: str | None, default=None):
+    """A JSON command-line value: literal JSON, or ``@path`` of a JSON file (what the workflow passes:
+    settings and plans travel in files it writes, never on the command line). One-line error if bad."""
+    import json
+
+    from lightcrafter.io import DataError
+
+    if text is None:
+        return default
+    try:
+        if text.startswith("@"):
+            return json.loads(Path(text[1:]).read_text())
+        return json.loads(text)
+    except FileNotFoundError:
+        raise DataError(f"{text[1:]}: settings file not found; rerun the workflow, which writes it") from None
+    except json.JSONDecodeError as exc:
+        where = text[1:] if text.startswith("@") else "a command-line JSON value"
+        raise DataError(f"{where}: not valid JSON ({exc.msg} at line {exc.lineno}); fix it") from None

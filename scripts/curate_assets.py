@@ -15,7 +15,7 @@ def main():
     ap.add_argument("--manifest", required=True)
     ap.add_argument("--settings", required=True, help="JSON of config['assets']['curation']")
     a = ap.parse_args()
-    m = curate_folder(a.src_dir, a.out_dir, a.manifest, CurationSettings(**json.loads(a.settings)))
+    m = curate_folder(a.src_dir, a.out_dir, a.manifest, CurationSettings(**_cli.json_arg(a.settings)))
     print(f"accepted {len(m['accepted'])}, rejected {len(m['rejected'])}")
 
 

@@ -60,7 +60,7 @@ def main() -> int:
     from lightcrafter import editing
 
     out = Path(a.out)
-    s = json.loads(a.settings_json)
+    s = _cli.json_arg(a.settings_json)
     try:
         spec = io.read_json(a.scene)
         reason = clipmod.is_skipped(a.clip)

@@ -16,7 +16,7 @@ def main():
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--settings", required=True, help="JSON of config['assets']['procedural']")
     a = ap.parse_args()
-    s = json.loads(a.settings)
+    s = _cli.json_arg(a.settings)
     paths = write_procedural_assets(a.out_dir, a.seed, s["count"], s.get("heavy_every", 0), s.get("include_faulty", False))
     write_json(a.listing, {"files": [str(p) for p in paths]})
     print(f"wrote {len(paths)} GLB files to {a.out_dir}")

@@ -58,7 +58,7 @@ def main() -> int:
     if a.threads:
         torch.set_num_threads(a.threads)
     try:
-        model = load_model(a.model, json.loads(a.config_json))
+        model = load_model(a.model, _cli.json_arg(a.config_json))
         cfg = model.cfg
         regressor = load_regressor(a.model)
         affine = load_affine_colour(a.model)

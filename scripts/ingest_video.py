@@ -29,7 +29,7 @@ def main() -> int:
     from lightcrafter.ingest import ingest_clip
 
     try:
-        m = ingest_clip(json.loads(a.clip_json), a.clip_id, a.out, width=a.width, height=a.height,
+        m = ingest_clip(_cli.json_arg(a.clip_json), a.clip_id, a.out, width=a.width, height=a.height,
                         num_frames=a.num_frames, short_clips=a.short_clips)
     except io.DataError as exc:
         print(f"ingest_video: {exc}", file=sys.stderr)

@@ -46,7 +46,7 @@ def main() -> int:
             write_skipped(out, f"source video skipped: {man['skipped']}", {"clip_id": name})
             print(f"reconstruct: {name}: left out (source video skipped)")
             return 0
-        settings = json.loads(a.settings_json)
+        settings = _cli.json_arg(a.settings_json)
         if a.backend == "default":
             from lightcrafter.recon.default import DefaultSettings, reconstruct_default
 

@@ -16,7 +16,7 @@ def main():
     ap.add_argument("--config", required=True, help="JSON with keys seed, scenes, render")
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
-    cfg = json.loads(a.config)
+    cfg = _cli.json_arg(a.config)
     spec = scenes.sample_scene(cfg["scenes"], cfg["render"], cfg["seed"], scenes.scene_index(a.scene_id),
                                read_json(a.manifest), scenes.hdri_pool(cfg["scenes"]))
     write_json(a.out, spec)

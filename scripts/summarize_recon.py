@@ -4,6 +4,7 @@ config), its run counts (once per trajectory vs once per pair), registration, sk
 
   summarize_recon.py --est CLIP.json ... --aligned CLIP.json ... --gt CLIP.json ... --real CLIP.json ...
       --plans-json '{...}' --out results/summary/reconstruction.json
+  summarize_recon.py --inputs @inputs.json --plans-json @plans.json --out ...
 """
 
 import argparse
@@ -23,17 +24,21 @@ def _timing(clip_manifest: str) -> float | None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--inputs", default=None, help="JSON or @file {est, aligned, gt, real: [clip manifest, ...]} "
+                    "(what the workflow passes: thousands of paths do not fit on a command line)")
     ap.add_argument("--est", nargs="*", default=[])
     ap.add_argument("--aligned", nargs="*", default=[])
     ap.add_argument("--gt", nargs="*", default=[])
     ap.add_argument("--real", nargs="*", default=[])
-    ap.add_argument("--plans-json", required=True)
+    ap.add_argument("--plans-json", required=True, help="JSON or @file {scene_id: scene_plan}")
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     from lightcrafter.clip import is_skipped, read_info
     from lightcrafter.recon.evaluate import clip_errors, summarize
 
-    plans = json.loads(a.plans_json)
+    for key, paths in _cli.json_arg(a.inputs, {}).items():
+        setattr(a, key, list(paths))
+    plans = _cli.json_arg(a.plans_json)
     motions, targets, frames = {}, 0, {}
     for sid, plan in plans.items():
         for t in plan["trajectories"]:

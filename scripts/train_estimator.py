@@ -32,7 +32,7 @@ def main() -> int:
     try:
         if len(a.clips) != len(a.videos):
             raise DataError(f"{len(a.clips)} clips but {len(a.videos)} videos; pass one source video per clip")
-        cfg = est.EstimatorConfig.from_dict(json.loads(a.config_json))
+        cfg = est.EstimatorConfig.from_dict(_cli.json_arg(a.config_json))
         pairs = sorted(zip(a.clips, a.videos))
         val_pairs = pairs[-1:] if len(pairs) > 1 else pairs
         train_pairs = pairs[:-1] if len(pairs) > 1 else pairs

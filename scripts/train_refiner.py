@@ -35,7 +35,7 @@ def main() -> int:
     if a.threads:
         torch.set_num_threads(a.threads)
     try:
-        cfg = resolve_config(json.loads(a.config_json))
+        cfg = resolve_config(_cli.json_arg(a.config_json))
         Path(a.out).mkdir(parents=True, exist_ok=True)
         res = fit_refiner(cfg, a.pairs, a.out, log=_logger(Path(a.out)))
     except (DataError, MissingWeightsError, KeyError, ValueError) as exc:

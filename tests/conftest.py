@@ -24,16 +24,27 @@ def repo() -> Path:
 
 @pytest.fixture(scope="session")
 def default_config(repo):
-    import yaml
+    """The effective laptop config (config/config.yaml over the models' defaults), as the rules get it."""
+    from lightcrafter.config import raw_config, validate
 
-    return yaml.safe_load((repo / "config" / "config.yaml").read_text())
+    return validate(raw_config())
 
 
 @pytest.fixture(scope="session")
 def paper_config(repo):
-    import yaml
+    """The effective paper config (validated; its site folders are not checked on disk)."""
+    from lightcrafter.config import raw_config, validate
 
-    return yaml.safe_load((repo / "config" / "paper.yaml").read_text())
+    return validate(raw_config([repo / "config" / "paper.yaml"]))
+
+
+@pytest.fixture(scope="session")
+def paper_site(tmp_path_factory):
+    """A stand-in site for config/paper.yaml (tests/paper_site.py): {name: path}, 'site' the site file that
+    extends config/paper.yaml with the folders' paths only."""
+    from paper_site import make_site
+
+    return make_site(tmp_path_factory.mktemp("paper-site"))
 
 
 @pytest.fixture(scope="session")

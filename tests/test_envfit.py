@@ -426,7 +426,8 @@ def test_cli_writes_outputs_and_reports_bad_input_in_one_line(scene, tmp_path):
                         "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
     assert p.returncode == 1 and p.stderr.strip().count("\n") == 0 and "frame folder not found" in p.stderr
     p = subprocess.run([sys.executable, str(script), "--clip", str(scene["clip"]), "--frames", str(scene["frames_dir"]),
-                        "--out", str(tmp_path / "o"), "--iterations", "30", "--spp", "2", "--transport-spp", "16"],
+                        "--out", str(tmp_path / "o"), "--settings-json", '{"iterations": 30, "transport_spp": 16}',
+                        "--proxy", '{"spp": 2}'],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert json.loads((tmp_path / "o" / "fit.json").read_text())["fit"]["solver"] == "fast"

@@ -37,7 +37,7 @@ def make_clip(root: Path, env: np.ndarray | None = None) -> tuple[Path, Path]:
 
 def run(gt, scene, out, *extra):
     return subprocess.run([sys.executable, str(REPO / "scripts" / "render_proxy.py"), "--clip", str(gt),
-                           "--scene", str(scene), "--light", "L1", "--traj", "t0", "--out", str(out), "--spp", "2",
+                           "--scene", str(scene), "--light", "L1", "--traj", "t0", "--out", str(out), "--proxy", '{"spp": 2}',
                            *extra],
                           capture_output=True, text=True, timeout=300)
 

@@ -11,11 +11,14 @@ REPO = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 
 
-def dry_run(*targets: str, configfile: str | None = None, extra: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
-    """``snakemake -n TARGETS --quiet rules`` in an empty working directory (nothing built yet)."""
+def dry_run(*targets: str, configfile: str | None = None, extra: tuple[str, ...] = (),
+            workdir: str | Path | None = None, quiet: bool = True) -> subprocess.CompletedProcess:
+    """``snakemake -n TARGETS --quiet rules`` in an empty working directory (nothing built yet), or in
+    ``workdir`` (what a finished run would redo); ``quiet=False`` lists every job with its outputs."""
     import tempfile
 
-    cmd = [*SNAKEMAKE, "-n", *targets, "--quiet", "rules", "--cores", "1", "-d", tempfile.mkdtemp(prefix="dag-")]
+    wd = str(workdir) if workdir is not None else tempfile.mkdtemp(prefix="dag-")
+    cmd = [*SNAKEMAKE, "-n", *targets, *(["--quiet", "rules"] if quiet else []), "--cores", "1", "-d", wd]
     if configfile:
         cmd += ["--configfile", str((REPO / configfile).resolve())]
     cmd += list(extra)

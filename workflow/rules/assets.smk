@@ -18,10 +18,10 @@ rule generate_assets:
         script=script_path("generate_assets.py"),
         out_dir=parent_dir,
         seed=SEED,
-        settings=as_json(config["assets"].get("procedural", {"count": 6})),
+        settings=params_file(config["assets"]["procedural"]),
     shell:
         "python {params.script} --out-dir {params.out_dir} "
-        "--listing {output} --seed {params.seed} --settings {params.settings:q} > {log} 2>&1"
+        "--listing {output} --seed {params.seed} --settings {params.settings} > {log} 2>&1"
 
 
 rule curate_assets:
@@ -43,7 +43,7 @@ rule curate_assets:
         script=script_path("curate_assets.py"),
         src_dir=curation_source_dir(),
         out_dir=curated_dir,
-        settings=as_json(config["assets"].get("curation", {})),
+        settings=params_file(config["assets"]["curation"]),
     shell:
         "python {params.script} --src-dir {params.src_dir} "
-        "--out-dir {params.out_dir} --manifest {output.manifest} --settings {params.settings:q} > {log} 2>&1"
+        "--out-dir {params.out_dir} --manifest {output.manifest} --settings {params.settings} > {log} 2>&1"

@@ -1,33 +1,47 @@
-# Shared helpers: config validation, the scene plan, real clips, and input functions. No rules here.
-# Paths come from lightcrafter.layout.Layout (one builder per product); dataset variants from the
-# registry lightcrafter.datasets.VARIANTS.
+# Shared helpers: the effective config, the scene plan, real clips, and input functions. No rules here.
+# Paths come from lightcrafter.layout.Layout (one builder per product); dataset variants and held-out
+# benchmarks from the registries in lightcrafter.datasets; Phi's backends from lightcrafter.recon.BACKENDS.
+# Settings and plans reach scripts through files the workflow writes (params_file), never on a command line.
+import hashlib
 import json
+import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, workflow.basedir)
 
 from lightcrafter import datasets as ds
-from lightcrafter.config import check_config
+from lightcrafter.config import effective_config, raw_config, validate
 from lightcrafter.ingest import real_clips
 from lightcrafter.layout import Layout
 from lightcrafter.mit_multi_illum import plan as mit_plan
 from lightcrafter.scenes import ConfigError, plan_scene, scene_ids
 
+# The effective config (python -m lightcrafter.config prints the same): the --configfile files (their
+# `extends` chains resolved; none given: config/config.yaml), then --config, validated and checked on disk.
 try:
-    check_config(config, workflow.source_path("../schemas/config.schema.yaml"))
+    _EFFECTIVE = effective_config(
+        workflow.overwrite_configfiles, dict(workflow.config_settings.config)
+    )
 except ConfigError as exc:
     sys.exit(f"ConfigError: {exc}")
+config.clear()
+config.update(_EFFECTIVE)
+# The paper's effective config (validated, not checked on disk): the report projects its cost.
+PAPER_CONFIG = validate(
+    raw_config([Path(workflow.basedir) / "config" / "paper.yaml"]), "config/paper.yaml"
+)
 
 OUT = config["output_dir"]
 L = Layout(OUT)
 SEED = config["seed"]
 SCENE_IDS = scene_ids(config["scenes"])
 _PLANS = {sid: plan_scene(config["scenes"], SEED, i) for i, sid in enumerate(SCENE_IDS)}
-# Real clips: ids fixed by config (video, chunk index), so the DAG is known before any video is read.
-REAL = real_clips(config.get("real", {}))
+# Real clips: ids fixed by config (video, chunk index; DL3DV scene folders), so the DAG is known before any
+# video is read.
+REAL = real_clips(config["real"], seed=SEED)
 # MIT Multi-Illumination benchmark (config mit.root; empty by default): one-frame clips and pairs.
-MIT = mit_plan(config.get("mit"))
+MIT = mit_plan(config["mit"])
 for _cid, _c in MIT["clips"].items():
     REAL[_cid] = {
         "video": _c["image"],
@@ -36,7 +50,7 @@ for _cid, _c in MIT["clips"].items():
         "start_frame": 0,
         "frame_step": 1,
         "num_frames": 1,
-        "fov_x_deg": float(config["mit"].get("fov_x_deg", 60.0)),
+        "fov_x_deg": float(config["mit"]["fov_x_deg"]),
         "scene_static": True,
         "camera_static": True,
     }
@@ -47,6 +61,26 @@ BENCHMARKS = (
     + (["real"] if any(c["split"] == "test" for c in REAL.values()) else [])
     + (["mit"] if MIT["pairs"] else [])
 )
+
+PARAMS_DIR = Path(".snakemake") / "lightcrafter-params"
+_PARAMS_WRITTEN = {}
+
+
+def params_file(obj):
+    """Settings or a plan for a script as a content-addressed JSON file: '@<path>' (scripts read it with
+    scripts/_cli.json_arg). The path changes exactly when the content does, so Snakemake's params trigger
+    still reruns a job whose settings changed, and no command line carries the data."""
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"))
+    if text not in _PARAMS_WRITTEN:
+        digest = hashlib.sha256(text.encode()).hexdigest()[:24]
+        path = PARAMS_DIR / f"{digest}.json"
+        if not path.is_file():
+            PARAMS_DIR.mkdir(parents=True, exist_ok=True)
+            tmp = PARAMS_DIR / f".{digest}.{os.getpid()}.tmp"
+            tmp.write_text(text)
+            os.replace(tmp, path)
+        _PARAMS_WRITTEN[text] = f"@{path}"
+    return _PARAMS_WRITTEN[text]
 
 
 wildcard_constraints:
@@ -79,11 +113,6 @@ def trajectory_plan(scene_id, traj_id):
 def script_path(name):
     """Absolute path of an entry point in scripts/ (rules call them with the env's python)."""
     return str(Path(workflow.basedir) / "scripts" / name)
-
-
-def as_json(obj):
-    """Compact JSON for passing config sections on a command line (quote with :q)."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"))
 
 
 # ----------------------------------------------------------------------------- ground truth
@@ -145,25 +174,26 @@ def manifest_stem(wildcards, output):
 
 
 # ----------------------------------------------------------------------------- reconstruction
+PAPER_STACK = config["recon"]["backend"] == "paper_stack"
+
+
 def recon_settings():
-    """The backend's settings: lightcrafter.recon.default.DefaultSettings, or the paper stack's
-    commands and options (lightcrafter.recon.paper_stack), from config."""
+    """The backend's settings: lightcrafter.recon.default.DefaultSettings fields, or the paper stack's
+    commands and options (lightcrafter.recon.paper_stack), from config recon."""
     r = config["recon"]
-    if r.get("backend", "default") == "paper_stack":
-        return dict(r.get("paper_stack", {}))
+    if PAPER_STACK:
+        return r["paper_stack"]
     return {
-        "fov_x_deg": r.get("fov_x_deg") or config["scenes"]["fov_x_deg"],
-        "normals": r.get("normals", "predicted"),
-        "depth_fit": r.get("depth_fit", "scale"),
-        "sfm": r.get("sfm", {}),
+        "fov_x_deg": r["fov_x_deg"] or config["scenes"]["fov_x_deg"],
+        "normals": r["normals"],
+        "depth_fit": r["depth_fit"],
+        "sfm": r["sfm"],
     }
 
 
 def estimator_input(wildcards):
     """The G-buffer estimator, needed by the default backend only."""
-    return (
-        L.estimator() if config["recon"].get("backend", "default") == "default" else []
-    )
+    return [] if PAPER_STACK else L.estimator()
 
 
 def estimator_arg(wildcards, input):
@@ -171,11 +201,12 @@ def estimator_arg(wildcards, input):
 
 
 def recon_backend_args():
-    """Command-line arguments selecting the backend of Phi (and its settings)."""
-    backend = config["recon"].get("backend", "default")
-    if backend == "paper_stack":
-        return f"--backend paper_stack"
-    return "--backend default"
+    """Command-line arguments selecting the backend of Phi (lightcrafter.recon.BACKENDS)."""
+    return f"--backend {config['recon']['backend']}"
+
+
+def skip_failed_flag():
+    return "--skip-failed" if config["recon"]["skip_failed"] else ""
 
 
 def recon_clip_id(wildcards):
@@ -206,43 +237,63 @@ def estimator_training_inputs(wildcards):
     }
 
 
+def inputs_file(*names):
+    """A params function: the named input lists of a rule as one file (lists of thousands of paths)."""
+    return lambda wildcards, input: params_file({n: list(input[n]) for n in names})
+
+
+# ----------------------------------------------------------------------------- one R (Mitsuba proxy renderer)
+def proxy_settings():
+    """R's settings for every job that renders with it (config proxy), through one file (scripts build
+    RenderSettings from it with lightcrafter.proxy.render_settings)."""
+    return params_file(config["proxy"])
+
+
 # ----------------------------------------------------------------------------- real videos
 def real_clip(wildcards):
     return REAL[wildcards.clip]
 
 
-def real_clip_json(wildcards):
-    return as_json(REAL[wildcards.clip])
+def real_clip_file(wildcards):
+    return params_file(REAL[wildcards.clip])
 
 
 # ----------------------------------------------------------------------------- datasets, refiner
-def refiner_scene_plans():
+def refiner_scene_plans(*splits):
     """{scene_id: scene_plan} of the scenes that give refiner pairs (split train or test)."""
-    return {sid: _PLANS[sid] for sid in scenes_in_split("train", "test")}
+    return {sid: _PLANS[sid] for sid in scenes_in_split(*(splits or ("train", "test")))}
 
 
-def plans_json(wildcards):
-    return as_json(refiner_scene_plans())
+def variant_specs(variant):
+    """The training set of a variant: only its own pairs (train split, the kinds it uses), so adding
+    a test clip changes no training set."""
+    return ds.variant_specs(variant, L, refiner_scene_plans("train"), REAL)
 
 
-def real_json(wildcards):
-    return as_json(REAL)
+def benchmark_specs(bench):
+    return ds.benchmark_specs(
+        bench, L, refiner_scene_plans("test"), REAL, MIT["pairs"]
+    )
 
 
 def variant_inputs(wildcards):
-    specs = ds.variant_specs(wildcards.variant, L, refiner_scene_plans(), REAL)
-    return ds.spec_inputs(specs)
+    return ds.spec_inputs(variant_specs(wildcards.variant))
 
 
 def benchmark_inputs(wildcards):
-    specs = ds.benchmark_specs(
-        wildcards.bench, L, refiner_scene_plans(), REAL, MIT["pairs"]
-    )
-    return ds.spec_inputs(specs)
+    return ds.spec_inputs(benchmark_specs(wildcards.bench))
 
 
-def mit_json(wildcards):
-    return as_json(MIT["pairs"])
+def variant_specs_file(wildcards):
+    return params_file(variant_specs(wildcards.variant))
+
+
+def benchmark_specs_file(wildcards):
+    return params_file(benchmark_specs(wildcards.bench))
+
+
+def plans_file(wildcards):
+    return params_file(refiner_scene_plans())
 
 
 def real_num_frames(wildcards):
@@ -254,30 +305,30 @@ def mit_pair(wildcards):
 
 
 def refiner_model_config():
-    """The refiner config dict passed to the scripts (the workflow-only 'resources' key removed)."""
-    return {k: v for k, v in config.get("refiner", {}).items() if k != "resources"}
+    """The refiner config the scripts get (the workflow-only 'resources' key removed)."""
+    return {k: v for k, v in config["refiner"].items() if k != "resources"}
 
 
-def refiner_config_json(wildcards):
+def refiner_config_file(wildcards):
     """The refiner config of a variant's training. The baselines (one-step regressor, affine colour) are
     Table 1 methods: trained with the first variant of datasets.variants only."""
     cfg = refiner_model_config()
     if wildcards.variant != DATASET_VARIANTS[0]:
         cfg = dict(cfg, baselines={"regressor_steps": 0, "affine_colour": False})
-    return as_json(cfg)
+    return params_file(cfg)
 
 
-def refiner_infer_json(wildcards):
+def refiner_infer_file(wildcards):
     """Inference overrides applied on top of the config stored with the trained model."""
-    return as_json({"infer": refiner_model_config().get("infer", {})})
+    return params_file({"infer": config["refiner"]["infer"]})
 
 
-def refiner_resource(key, default):
-    return config.get("refiner", {}).get("resources", {}).get(key, default)
+def refiner_resource(key):
+    return config["refiner"]["resources"][key]
 
 
 def refiner_threads():
-    return refiner_resource("threads", 2)
+    return refiner_resource("threads")
 
 
 def refiner_outputs():
@@ -301,11 +352,11 @@ def results_root(wildcards, output):
 
 
 def real_recon_settings(wildcards):
-    """Phi's settings for a real clip: the video's own field-of-view prior."""
+    """Phi's settings for a real clip: the video's own field-of-view prior and camera flag."""
     c = REAL[wildcards.clip]
-    if config["recon"].get("backend", "default") == "paper_stack":
-        return as_json(recon_settings())
-    return as_json(
+    if PAPER_STACK:
+        return params_file(recon_settings())
+    return params_file(
         dict(
             recon_settings(),
             fov_x_deg=c["fov_x_deg"],
@@ -354,25 +405,24 @@ def _first_test_clip():
 
 
 def _longform_settings():
-    lf = config.get("longform", {})
+    lf = config["longform"]
     scene, _, _ = _first_test_clip()
     scfg = dict(
         config["scenes"],
-        num_frames=int(lf.get("num_frames", 201)),
+        num_frames=int(lf["num_frames"]),
         trajectories_per_scene=1,
-        motions=[lf.get("motion", "orbit_static")],
-        splits=config["scenes"]["splits"],
+        motions=[lf["motion"]],
     )
     plan = plan_scene(scfg, SEED, int(scene[1:])) if scene else None
     light = plan["trajectories"][0]["target_lights"][0] if plan else None
     return {
         "scene": scene,
         "light": light,
-        "variant": lf.get("variant", "full"),
+        "variant": lf["variant"],
         "config": {
             "seed": SEED,
             "scenes": scfg,
-            "render": dict(config["render"], spp=int(lf.get("spp", 4))),
+            "render": dict(config["render"], spp=int(lf["spp"] or config["render"]["spp"])),
         },
     }
 
@@ -383,13 +433,13 @@ EDIT = {
     "scene": _E[0],
     "traj": _E[1],
     "light": _E[2],
-    "variant": config.get("edits", {}).get("variant", "full"),
+    "variant": config["edits"]["variant"],
 }
 EDIT_KINDS = ["light", "material", "object"]
 
 
 def edit_settings(wildcards):
-    return as_json(config.get("edits", {}).get(wildcards.kind, {}))
+    return params_file(config["edits"][wildcards.kind])
 
 
 def edit_render_clip(wildcards):
@@ -404,23 +454,23 @@ def extra_outputs():
     if EDIT["scene"] is None:
         return []
     out = []
-    if config.get("longform", {}).get("enabled", True):
+    if config["longform"]["enabled"]:
         out.append(L.longform_metrics())
-    if config.get("edits", {}).get("enabled", True):
+    if config["edits"]["enabled"]:
         out += [L.edit_refined(k) + ".json" for k in EDIT_KINDS]
     return out
 
 
 def evaluation_args(wildcards):
     """Local weights of LPIPS and CLIP and the external methods' folder (config evaluation), if set."""
-    e = config.get("evaluation", {})
+    e = config["evaluation"]
     args = []
     for key, flag in (
         ("lpips_weights", "--lpips-weights"),
         ("clip_weights", "--clip-weights"),
     ):
-        if e.get(key):
+        if e[key]:
             args += [flag, e[key]]
-    if e.get("external_dir"):
+    if e["external_dir"]:
         args += ["--external-dir", str(Path(e["external_dir"]) / wildcards.bench)]
     return " ".join(args)

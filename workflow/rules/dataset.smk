@@ -20,11 +20,10 @@ rule dataset:
         runtime=10,
     params:
         script=script_path("build_dataset.py"),
-        plans=plans_json,
-        real=real_json,
+        specs=variant_specs_file,
     shell:
-        "python {params.script} --variant {wildcards.variant} --plans-json {params.plans:q} "
-        "--real-json {params.real:q} --output {output.pairs} > {log} 2>&1"
+        "python {params.script} --variant {wildcards.variant} --specs {params.specs} "
+        "--output {output.pairs} > {log} 2>&1"
 
 
 rule benchmark_pairs:
@@ -44,9 +43,7 @@ rule benchmark_pairs:
         runtime=10,
     params:
         script=script_path("build_dataset.py"),
-        plans=plans_json,
-        real=real_json,
-        mit=mit_json,
+        specs=benchmark_specs_file,
     shell:
-        "python {params.script} --benchmark {wildcards.bench} --plans-json {params.plans:q} "
-        "--real-json {params.real:q} --mit-json {params.mit:q} --output {output.pairs} > {log} 2>&1"
+        "python {params.script} --benchmark {wildcards.bench} --specs {params.specs} "
+        "--output {output.pairs} > {log} 2>&1"

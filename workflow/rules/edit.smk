@@ -30,7 +30,7 @@ rule edit_scene:
     shell:
         "python {params.script} --kind {wildcards.kind} --clip {params.clip} --scene {input.scene} "
         "--traj {params.traj} --light {params.light} --out {params.out_dir} "
-        "--settings-json {params.settings:q} --manifest {input.manifest} > {log} 2>&1"
+        "--settings-json {params.settings} --manifest {input.manifest} > {log} 2>&1"
 
 
 rule render_edit:
@@ -54,10 +54,10 @@ rule render_edit:
         clip=edit_render_clip,
         lighting=lambda wc: L.edit_lighting(wc.kind),
         out_dir=manifest_stem,
-        spp=config["proxy"]["spp"],
+        proxy=proxy_settings(),
     shell:
         "python {params.script} --clip {params.clip} --lighting {params.lighting} --out {params.out_dir} "
-        "--spp {params.spp} --threads {threads} > {log} 2>&1"
+        "--proxy {params.proxy} --threads {threads} > {log} 2>&1"
 
 
 rule refine_edit:

@@ -20,14 +20,14 @@ rule ingest_video:
         runtime=10,
     params:
         script=script_path("ingest_video.py"),
-        clip=real_clip_json,
+        clip=real_clip_file,
         out_dir=manifest_stem,
         width=config["scenes"]["width"],
         height=config["scenes"]["height"],
         frames=real_num_frames,
-        short=config["real"].get("short_clips", "skip"),
+        short=config["real"]["short_clips"],
     shell:
-        "python {params.script} --clip-json {params.clip:q} --clip-id {wildcards.clip} --out {params.out_dir} "
+        "python {params.script} --clip-json {params.clip} --clip-id {wildcards.clip} --out {params.out_dir} "
         "--width {params.width} --height {params.height} --num-frames {params.frames} "
         "--short-clips {params.short} > {log} 2>&1"
 
@@ -55,11 +55,11 @@ rule reconstruct_real:
         out_dir=parent_dir,
         settings=real_recon_settings,
         static=real_scene_static,
-        skip="--skip-failed" if config["recon"].get("skip_failed", True) else "",
+        skip=skip_failed_flag(),
     shell:
         "python {params.script} --frames {input.video} --out {params.out_dir} {params.backend} "
         "{params.estimator} "
-        "--scene-static {params.static} --settings-json {params.settings:q} --name {wildcards.clip} "
+        "--scene-static {params.static} --settings-json {params.settings} --name {wildcards.clip} "
         "{params.skip} > {log} 2>&1"
 
 
@@ -85,12 +85,11 @@ rule fit_envmap:
         clip_dir=clip_dir_of_input,
         out_dir=parent_dir,
         frames=manifest_stem_of_input,
-        settings=as_json(config.get("envfit", {})),
-        spp=config["proxy"]["spp"],
+        settings=params_file(config["envfit"]),
+        proxy=proxy_settings(),
     shell:
         "python {params.script} --clip {params.clip_dir} --frames {params.frames} --out {params.out_dir} "
-        "--saturation-level 1.0 --spp {params.spp} --settings-json {params.settings:q} "
-        "--threads {threads} > {log} 2>&1"
+        "--proxy {params.proxy} --settings-json {params.settings} --threads {threads} > {log} 2>&1"
 
 
 # A MIT pair id (mit_<scene>_d<i>_to_d<j>) also matches {clip}: its fit comes from relight_mit.
@@ -119,9 +118,8 @@ rule relight_mit:
         clip_dir=clip_dir_of_input,
         out_dir=parent_dir,
         frames=manifest_stem_of_input,
-        settings=as_json(config.get("envfit", {})),
-        spp=config["proxy"]["spp"],
+        settings=params_file(config["envfit"]),
+        proxy=proxy_settings(),
     shell:
         "python {params.script} --clip {params.clip_dir} --frames {params.frames} --out {params.out_dir} "
-        "--saturation-level 1.0 --spp {params.spp} --settings-json {params.settings:q} "
-        "--threads {threads} > {log} 2>&1"
+        "--proxy {params.proxy} --settings-json {params.settings} --threads {threads} > {log} 2>&1"

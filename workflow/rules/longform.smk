@@ -21,10 +21,10 @@ rule longform_scene:
     params:
         script=script_path("sample_scene.py"),
         scene=LONGFORM["scene"],
-        cfg=as_json(LONGFORM["config"]),
+        cfg=params_file(LONGFORM["config"]),
     shell:
         "python {params.script} --scene-id {params.scene} --manifest {input.manifest} "
-        "--config {params.cfg:q} --out {output} > {log} 2>&1"
+        "--config {params.cfg} --out {output} > {log} 2>&1"
 
 
 rule longform_buffers:
@@ -94,10 +94,10 @@ rule longform_proxy:
     params:
         script=script_path("render_proxy.py"),
         out_dir=manifest_stem,
-        spp=config["proxy"]["spp"],
+        proxy=proxy_settings(),
     shell:
         "python {params.script} --clip {input.clip} --scene {input.scene} --traj t0 "
-        "--light {wildcards.light} --out {params.out_dir} --spp {params.spp} --threads {threads} > {log} 2>&1"
+        "--light {wildcards.light} --out {params.out_dir} --proxy {params.proxy} --threads {threads} > {log} 2>&1"
 
 
 rule longform:

@@ -27,14 +27,11 @@ rule render_proxy_gt:
     params:
         script=script_path("render_proxy.py"),
         out_dir=manifest_stem,
-        spp=config["proxy"]["spp"],
-        visibility=config["proxy"]["visibility"],
-        rel_threshold=config["proxy"]["rel_threshold"],
+        proxy=proxy_settings(),
     shell:
         "python {params.script} --clip {input.clip} "
         "--scene {input.scene} --traj {wildcards.traj} --light {wildcards.light} --out {params.out_dir} "
-        "--spp {params.spp} --visibility {params.visibility} --rel-threshold {params.rel_threshold} "
-        "--threads {threads} > {log} 2>&1"
+        "--proxy {params.proxy} --threads {threads} > {log} 2>&1"
 
 
 rule render_proxy:
@@ -56,11 +53,8 @@ rule render_proxy:
     params:
         script=script_path("render_proxy.py"),
         out_dir=manifest_stem,
-        spp=config["proxy"]["spp"],
-        visibility=config["proxy"]["visibility"],
-        rel_threshold=config["proxy"]["rel_threshold"],
+        proxy=proxy_settings(),
     shell:
         "python {params.script} --clip {input.clip} "
         "--scene {input.scene} --traj {wildcards.traj} --light {wildcards.light} --out {params.out_dir} "
-        "--spp {params.spp} --visibility {params.visibility} --rel-threshold {params.rel_threshold} "
-        "--threads {threads} > {log} 2>&1"
+        "--proxy {params.proxy} --threads {threads} > {log} 2>&1"

@@ -21,10 +21,10 @@ rule train_gbuffer_estimator:
         runtime=60,
     params:
         script=script_path("train_estimator.py"),
-        cfg=as_json(dict(config["recon"].get("estimator", {}), threads=2)),
+        cfg=params_file(dict(config["recon"]["estimator"], threads=2)),
     shell:
         "python {params.script} --clips {input.clips} --videos {input.videos} "
-        "--config-json {params.cfg:q} --out {output.model} --curve {output.curve} > {log} 2>&1"
+        "--config-json {params.cfg} --out {output.model} --curve {output.curve} > {log} 2>&1"
 
 
 rule reconstruct_synthetic:
@@ -50,12 +50,12 @@ rule reconstruct_synthetic:
         out_dir=parent_dir,
         fps=config["scenes"]["fps"],
         static=scene_static_flag,
-        settings=as_json(recon_settings()),
-        skip="--skip-failed" if config["recon"].get("skip_failed", True) else "",
+        settings=params_file(recon_settings()),
+        skip=skip_failed_flag(),
     shell:
         "python {params.script} --frames {input.video} --out {params.out_dir} {params.backend} "
         "{params.estimator} "
-        "--fps {params.fps} --scene-static {params.static} --settings-json {params.settings:q} "
+        "--fps {params.fps} --scene-static {params.static} --settings-json {params.settings} "
         "--name {wildcards.scene}_{wildcards.traj} {params.skip} > {log} 2>&1"
 
 
@@ -99,7 +99,8 @@ rule summarize_reconstruction:
         runtime=10,
     params:
         script=script_path("summarize_recon.py"),
-        plans=plans_json,
+        plans=plans_file,
+        inputs=inputs_file("est", "aligned", "gt", "real"),
     shell:
-        "python {params.script} --est {input.est} --aligned {input.aligned} --gt {input.gt} "
-        "--real {input.real} --plans-json {params.plans:q} --out {output} > {log} 2>&1"
+        "python {params.script} --inputs {params.inputs} --plans-json {params.plans} "
+        "--out {output} > {log} 2>&1"

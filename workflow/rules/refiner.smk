@@ -1,6 +1,6 @@
 # Refiner: training per dataset variant (its train split), inference and evaluation on each held-out
-# benchmark (shared by all variants). Config: config["refiner"] is the refiner config dict (keys:
-# lightcrafter/refiner/config.py KEY_DOCS) plus "resources" {threads, mem_mb, runtime} for these rules.
+# benchmark (shared by all variants). Config: config["refiner"] is the refiner config (models in
+# lightcrafter/refiner/config.py) plus "resources" {threads, mem_mb, runtime} for these rules.
 
 
 rule train_refiner:
@@ -16,15 +16,15 @@ rule train_refiner:
         "../../envs/refiner.yaml"
     threads: refiner_threads()
     resources:
-        mem_mb=refiner_resource("mem_mb", 4000),
-        runtime=refiner_resource("runtime", 120),
+        mem_mb=refiner_resource("mem_mb"),
+        runtime=refiner_resource("runtime"),
     params:
         script=script_path("train_refiner.py"),
-        cfg=refiner_config_json,
+        cfg=refiner_config_file,
         out_dir=parent_dir,
     shell:
         "python {params.script} --pairs {input.pairs} "
-        "--config-json {params.cfg:q} --out {params.out_dir} --threads {threads} > {log} 2>&1"
+        "--config-json {params.cfg} --out {params.out_dir} --threads {threads} > {log} 2>&1"
 
 
 rule infer_refiner:
@@ -41,15 +41,15 @@ rule infer_refiner:
         "../../envs/refiner.yaml"
     threads: refiner_threads()
     resources:
-        mem_mb=refiner_resource("mem_mb", 4000),
-        runtime=refiner_resource("runtime", 120),
+        mem_mb=refiner_resource("mem_mb"),
+        runtime=refiner_resource("runtime"),
     params:
         script=script_path("infer_refiner.py"),
-        cfg=refiner_infer_json,
+        cfg=refiner_infer_file,
         out_dir=parent_dir,
     shell:
         "python {params.script} --model {input.model} --pairs {input.pairs} "
-        "--split test --config-json {params.cfg:q} --out {params.out_dir} --threads {threads} > {log} 2>&1"
+        "--split test --config-json {params.cfg} --out {params.out_dir} --threads {threads} > {log} 2>&1"
 
 
 rule evaluate_refiner:
@@ -70,7 +70,7 @@ rule evaluate_refiner:
         runtime=30,
     params:
         script=script_path("evaluate_refiner.py"),
-        exposure=config.get("refiner", {}).get("data", {}).get("exposure_ev", 0.0),
+        exposure=config["refiner"]["data"]["exposure_ev"],
         weights=evaluation_args,
     shell:
         "python {params.script} --pairs {input.pairs} "

@@ -21,13 +21,13 @@ rule run_report:
     params:
         script=script_path("build_report.py"),
         results=results_root,
-        cfg=as_json(
+        cfg=params_file(
             {
                 k: config[k]
                 for k in ("seed", "scenes", "render", "proxy", "real", "recon")
             }
         ),
-        paper=str(Path(workflow.basedir) / "config" / "paper.yaml"),
+        paper=params_file(PAPER_CONFIG),
     shell:
-        "python {params.script} --results {params.results} --logs logs --config-json {params.cfg:q} "
+        "python {params.script} --results {params.results} --logs logs --config-json {params.cfg} "
         "--project {params.paper} > {log} 2>&1"

@@ -18,9 +18,9 @@ rule sample_scene:
         runtime=5,
     params:
         script=script_path("sample_scene.py"),
-        cfg=as_json(
+        cfg=params_file(
             {"seed": SEED, "scenes": config["scenes"], "render": config["render"]}
         ),
     shell:
         "python {params.script} --scene-id {wildcards.scene} "
-        "--manifest {input.manifest} --config {params.cfg:q} --out {output} > {log} 2>&1"
+        "--manifest {input.manifest} --config {params.cfg} --out {output} > {log} 2>&1"
