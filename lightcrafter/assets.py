@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lightcrafter.config.models import Curation
 from .io import atomic_path, write_json
 
 # ----------------------------------------------------------------------------- generation
@@ -198,18 +199,8 @@ def write_procedural_assets(out_dir: str | Path, seed: int, count: int, heavy_ev
 
 
 # ----------------------------------------------------------------------------- curation
-@dataclass
-class CurationSettings:
-    """target_size_m: largest extent after normalisation (metres).
-    max_faces: meshes above this are decimated (quadric edge collapse) to it.
-    min_faces: fewer faces than this is "degenerate".
-    min_thickness_ratio: smallest/largest extent below this is "degenerate" (flat or a line).
-    """
-
-    target_size_m: float = 0.8
-    max_faces: int = 20000
-    min_faces: int = 4
-    min_thickness_ratio: float = 0.02
+# The curation settings are config assets.curation (one definition of keys and defaults).
+CurationSettings = Curation
 
 
 class AssetRejected(Exception):

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lightcrafter.config.models import SfM
 from lightcrafter.camera import intrinsics
 from lightcrafter.io import DataError
 
@@ -40,22 +41,8 @@ class ReconstructionError(DataError):
     """The video cannot be reconstructed (too little texture, parallax or registered frames)."""
 
 
-@dataclass
-class SfMSettings:
-    """max_features: SIFT features per frame; peak_threshold: SIFT detection threshold (lower = more,
-    weaker features); exhaustive_max_frames: clips up to this length match every pair, longer ones
-    sequentially with ``sequential_overlap`` neighbours; min_registered_fraction: below it the clip
-    fails; static_motion_px: median feature motion under which the camera is static; threads: COLMAP
-    threads (1 = bit-reproducible: with more, feature matching and bundle adjustment run in a
-    scheduling-dependent order and the poses differ in the last digits)."""
-
-    max_features: int = 4096
-    peak_threshold: float = 0.004
-    exhaustive_max_frames: int = 60
-    sequential_overlap: int = 10
-    min_registered_fraction: float = 0.6
-    static_motion_px: float = 0.8
-    threads: int = 1
+# The structure-from-motion settings are config recon.sfm (one definition of keys and defaults).
+SfMSettings = SfM
 
 
 @dataclass

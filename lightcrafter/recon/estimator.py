@@ -24,45 +24,38 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
+from pydantic import Field
 
+from lightcrafter.config.models import Estimator
 from lightcrafter import io
 
 OUTPUT_CHANNELS = {"log_depth": 1, "normal": 3, "albedo": 3, "roughness": 1, "metallic": 1, "mask": 1}
 
 
-@dataclass
-class EstimatorConfig:
-    """widths: channels per U-Net level (each level halves the resolution); steps: optimizer steps;
-    batch: crops per step; crop: [height, width] of the random training crops (pixels; the network is
-    fully convolutional and sees each crop's full-frame coordinates; null = whole frames); lr: Adam
-    learning rate; eval_every: steps between validation points of the error-against-time curve;
-    keep_best: keep the weights of the validation point with the lowest normal error (model selection
-    on held-out recon-split clips, never train or test scenes); seed; threads: torch CPU threads."""
+class EstimatorConfig(Estimator):
+    """Config recon.estimator (:class:`lightcrafter.config.models.Estimator`: widths, steps, batch, crop,
+    lr, eval_every, keep_best, seed) plus threads: torch CPU threads."""
 
-    widths: list[int] = field(default_factory=lambda: [16, 32, 48, 64])
-    steps: int = 400
-    batch: int = 8
-    crop: list[int] = field(default_factory=lambda: [64, 96])
-    lr: float = 2e-3
-    eval_every: int = 25
-    keep_best: bool = True
-    seed: int = 0
-    threads: int = 2
+    threads: int = Field(2, ge=1, description="torch CPU threads")
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "EstimatorConfig":
-        d = dict(d or {})
-        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"unknown recon.estimator key(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
-        return cls(**d)
+        """Validated; unknown keys or bad values raise ValueError naming the key."""
+        from pydantic import ValidationError
+
+        try:
+            return cls.model_validate(dict(d or {}))
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            key = ".".join(map(str, err["loc"]))
+            raise ValueError(f"recon.estimator.{key}: {err['msg']}; known: {sorted(cls.model_fields)}") from None
 
 
 def frame_coords(h: int, w: int) -> torch.Tensor:
@@ -303,7 +296,7 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
 
 def save(model: GBufferNet, cfg: EstimatorConfig, path: str | Path, extra: dict | None = None) -> None:
     with io.atomic_path(path) as tmp:
-        torch.save({"state": model.state_dict(), "config": asdict(cfg), **(extra or {})}, tmp)
+        torch.save({"state": model.state_dict(), "config": cfg.model_dump(), **(extra or {})}, tmp)
 
 
 def load(path: str | Path) -> GBufferNet:
