@@ -5,7 +5,8 @@ For each scene count N, runs in a fresh empty working directory
     snakemake -n --configfile config/paper.yaml <N scenes> --quiet rules -d <empty dir>
 
 (the paper config with ``scenes.count`` set to N through a small extra config file; the default
-target, i.e. the whole pipeline) and records the wall seconds of the Snakemake process, its peak
+target, i.e. the whole pipeline; the paper config's data folders are stand-ins in their real layouts,
+tests/paper_site.py, since the workflow checks them at start-up) and records the wall seconds of the Snakemake process, its peak
 resident memory (``ru_maxrss`` from wait4 on that process, MB = 1e6 bytes), its CPU seconds and
 the planned job count. Writes
 
@@ -36,6 +37,8 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
 from lightcrafter import io  # noqa: E402
+from lightcrafter.config import raw_config, validate  # noqa: E402
+from paper_site import make_site  # noqa: E402
 from workflow_util import job_counts  # noqa: E402
 
 
@@ -72,10 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "dag_scale.json")
     args = ap.parse_args(argv)
 
-    paper_scenes = yaml.safe_load(args.configfile.read_text())["scenes"]["count"]
+    paper_scenes = validate(raw_config([args.configfile]))["scenes"]["count"]
+    site_dir = tempfile.TemporaryDirectory(prefix="lc_site_")
+    configfile = args.configfile
+    if args.configfile.resolve() == (REPO / "config" / "paper.yaml").resolve():
+        configfile = Path(make_site(Path(site_dir.name))["site"])
     points = []
     for n in args.scenes:
-        runs = [dry_run(n, args.configfile) for _ in range(args.repeats)]
+        runs = [dry_run(n, configfile) for _ in range(args.repeats)]
         best = min(runs, key=lambda r: r["seconds"])
         points.append({"setting": n, "seconds": round(best["seconds"], 2), "value": round(best["peak_rss_mb"], 1),
                        "jobs": best["jobs"], "cpu_seconds": round(best["cpu_seconds"], 2),

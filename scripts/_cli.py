@@ -10,16 +10,19 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 
-def run(main) -> None:
-    """Run ``main()``; known input errors become one line on stderr and exit code 1."""
+def run(main, name: str | None = None, errors: tuple = ()) -> None:
+    """Run ``main()`` and exit with its return value (None = 0). Known input errors (DataError,
+    ConfigError, FileNotFoundError, and ``errors``) become one line on stderr, ``<name>: <message>``
+    (``error: <message>`` without a name), and exit code 1: the one error path of every entry point."""
     from lightcrafter.io import DataError
     from lightcrafter.scenes import ConfigError
 
     try:
-        main()
-    except (DataError, ConfigError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        rc = main()
+    except (DataError, ConfigError, FileNotFoundError, *errors) as exc:
+        print(f"{name or 'error'}: {exc}", file=sys.stderr)
         sys.exit(1)
+    sys.exit(int(rc or 0))
 
 
 def json_arg(text: str | None, default=None):

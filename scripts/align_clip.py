@@ -7,9 +7,8 @@ A skipped reconstruction gives a skipped aligned clip.
 """
 
 import argparse
-import sys
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import io
 
@@ -23,19 +22,15 @@ def main() -> int:
     from lightcrafter.clip import is_skipped, write_skipped
     from lightcrafter.recon.align import align_clip
 
-    try:
-        reason = is_skipped(a.est)
-        if reason:
-            write_skipped(a.out, reason)
-            print(f"align_clip: {a.est} was skipped; left out")
-            return 0
-        m = align_clip(a.est, a.gt, a.out)
-    except io.DataError as exc:
-        print(f"align_clip: {exc}", file=sys.stderr)
-        return 1
+    reason = is_skipped(a.est)
+    if reason:
+        write_skipped(a.out, reason)
+        print(f"align_clip: {a.est} was skipped; left out")
+        return 0
+    m = align_clip(a.est, a.gt, a.out)
     print(f"align_clip: scale {m['align']['scale']:.4f}, depth scale {m['align']['depth_scale']:.4f} -> {a.out}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "align_clip", (io.DataError,))

@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import datasets
 from lightcrafter.io import DataError, write_json, write_jsonl
@@ -37,18 +37,14 @@ def main() -> int:
     a = ap.parse_args()
     out = Path(a.output)
     layout = Layout(root_of(out, "datasets" if a.variant else "benchmarks").as_posix())
-    try:
-        plans, real = _cli.json_arg(a.plans_json), _cli.json_arg(a.real_json)
-        if a.specs is not None:
-            specs = _cli.json_arg(a.specs)
-        elif a.variant:
-            specs = datasets.variant_specs(a.variant, layout, plans, real)
-        else:
-            specs = datasets.benchmark_specs(a.benchmark, layout, plans, real, _cli.json_arg(a.mit_json))
-        records, summary = datasets.build_records(specs, ".", a.variant)
-    except DataError as exc:
-        print(f"build_dataset: {exc}", file=sys.stderr)
-        return 1
+    plans, real = _cli.json_arg(a.plans_json), _cli.json_arg(a.real_json)
+    if a.specs is not None:
+        specs = _cli.json_arg(a.specs)
+    elif a.variant:
+        specs = datasets.variant_specs(a.variant, layout, plans, real)
+    else:
+        specs = datasets.benchmark_specs(a.benchmark, layout, plans, real, _cli.json_arg(a.mit_json))
+    records, summary = datasets.build_records(specs, ".", a.variant)
     if not records:
         print(f"build_dataset: {a.variant or a.benchmark}: no pairs (all {len(summary['skipped'])} left out or none "
               "configured); check results/*/summary.json and the config's splits", file=sys.stderr)
@@ -61,4 +57,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "build_dataset", (DataError,))

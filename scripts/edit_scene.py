@@ -12,10 +12,9 @@ for ``material`` and ``object``, the edited clip DIR/clip/ (lightcrafter.clip co
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import io
 
@@ -61,53 +60,49 @@ def main() -> int:
 
     out = Path(a.out)
     s = _cli.json_arg(a.settings_json)
-    try:
-        spec = io.read_json(a.scene)
-        reason = clipmod.is_skipped(a.clip)
-        if reason:
-            raise io.DataError(f"{a.clip}: the clip to edit was left out by the reconstruction stack ({reason}); "
-                               "choose another clip in edits")
-        record = {"kind": a.kind, "clip": a.clip, "scene_id": spec.get("scene_id"), "trajectory": a.traj,
-                  "light": a.light}
-        if a.kind == "light":
-            lights = {"point_lights": s.get("point_lights", []), "area_lights": s.get("area_lights", [])}
-            scene_lighting_file(spec, a.light, a.traj, out / "lighting.json", lights)
-            record.update(lights)
+    spec = io.read_json(a.scene)
+    reason = clipmod.is_skipped(a.clip)
+    if reason:
+        raise io.DataError(f"{a.clip}: the clip to edit was left out by the reconstruction stack ({reason}); "
+                           "choose another clip in edits")
+    record = {"kind": a.kind, "clip": a.clip, "scene_id": spec.get("scene_id"), "trajectory": a.traj,
+              "light": a.light}
+    if a.kind == "light":
+        lights = {"point_lights": s.get("point_lights", []), "area_lights": s.get("area_lights", [])}
+        scene_lighting_file(spec, a.light, a.traj, out / "lighting.json", lights)
+        record.update(lights)
+    else:
+        scene_lighting_file(spec, a.light, a.traj, out / "lighting.json")
+        views, info = clipmod.read_clip(a.clip)
+        if a.kind == "material":
+            obj = next((o for o in spec["objects"] if o["id"] == s.get("object", spec["objects"][0]["id"])), None)
+            if obj is None:
+                raise io.DataError(f"{a.scene}: no object {s.get('object')!r} to edit; fix edits.material.object")
+            centre = [obj["location_m"][0], obj["location_m"][1], 0.5 * obj["height_m"]]
+            radius = float(s.get("radius_scale", 1.2)) * max(obj["footprint_radius_m"], 0.5 * obj["height_m"])
+            edit = {k: s[k] for k in s if k.endswith(("_override", "_multiplier"))}
+            views, frac = editing.material_edit_views(views, centre, radius, edit)
+            record.update({"object": obj["id"], "centre_m": centre, "radius_m": radius, "edit": edit,
+                           "pixels_edited": frac})
         else:
-            scene_lighting_file(spec, a.light, a.traj, out / "lighting.json")
-            views, info = clipmod.read_clip(a.clip)
-            if a.kind == "material":
-                obj = next((o for o in spec["objects"] if o["id"] == s.get("object", spec["objects"][0]["id"])), None)
-                if obj is None:
-                    raise io.DataError(f"{a.scene}: no object {s.get('object')!r} to edit; fix edits.material.object")
-                centre = [obj["location_m"][0], obj["location_m"][1], 0.5 * obj["height_m"]]
-                radius = float(s.get("radius_scale", 1.2)) * max(obj["footprint_radius_m"], 0.5 * obj["height_m"])
-                edit = {k: s[k] for k in s if k.endswith(("_override", "_multiplier"))}
-                views, frac = editing.material_edit_views(views, centre, radius, edit)
-                record.update({"object": obj["id"], "centre_m": centre, "radius_m": radius, "edit": edit,
-                               "pixels_edited": frac})
-            else:
-                glb = s.get("asset") or _unused_asset(spec, a.manifest)
-                loc = s.get("location_m") or editing.free_ground_spot(spec).tolist()
-                views, frac = editing.insert_object(views, glb, loc, float(s.get("yaw_rad", 0.0)), float(s.get("scale", 1.0)))
-                record.update({"asset": str(glb), "location_m": loc, "pixels_covered": frac})
-            inputs = {"what": "edit", "kind": a.kind, "clip": clipmod.identity(a.clip), "settings": s}
-            ff = clipmod.buffer_frames(out / "clip", inputs)
-            for i in ff.missing(range(len(views)), io.read_buffers):
-                ff.stamp()
-                io.write_buffers(ff.path(i), views[i].buffers)
-            clipmod.write_clip(out / "clip", serve=list(range(len(views))), K=[v.K for v in views],
-                               c2w=[v.c2w for v in views], width=info.width, height=info.height, fps=info.fps,
-                               camera_static=info.camera_static, scene_static=info.scene_static, units=info.units,
-                               producer={"stage": "edit", "kind": a.kind, "source": info.producer},
-                               content_id=io.fingerprint(inputs))
-    except io.DataError as exc:
-        print(f"edit_scene: {exc}", file=sys.stderr)
-        return 1
+            glb = s.get("asset") or _unused_asset(spec, a.manifest)
+            loc = s.get("location_m") or editing.free_ground_spot(spec).tolist()
+            views, frac = editing.insert_object(views, glb, loc, float(s.get("yaw_rad", 0.0)), float(s.get("scale", 1.0)))
+            record.update({"asset": str(glb), "location_m": loc, "pixels_covered": frac})
+        inputs = {"what": "edit", "kind": a.kind, "clip": clipmod.identity(a.clip), "settings": s}
+        ff = clipmod.buffer_frames(out / "clip", inputs)
+        for i in ff.missing(range(len(views)), io.read_buffers):
+            ff.stamp()
+            io.write_buffers(ff.path(i), views[i].buffers)
+        clipmod.write_clip(out / "clip", serve=list(range(len(views))), K=[v.K for v in views],
+                           c2w=[v.c2w for v in views], width=info.width, height=info.height, fps=info.fps,
+                           camera_static=info.camera_static, scene_static=info.scene_static, units=info.units,
+                           producer={"stage": "edit", "kind": a.kind, "source": info.producer},
+                           content_id=io.fingerprint(inputs))
     io.write_json(out / "edit.json", record)
     print(f"edit_scene: {a.kind}: {json.dumps(record)[:300]}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "edit_scene", (io.DataError,))

@@ -23,12 +23,11 @@ interval.
 """
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import evaluation as ev
 from lightcrafter.io import DataError, linear_to_display, read_json, read_rgb_exr, write_json
@@ -68,59 +67,55 @@ def main() -> int:
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     root = Path.cwd()
-    try:
-        ds = PairsDataset(a.pairs, a.split, a.exposure_ev, cache=False)
-        manifest = read_json(a.refined)
-        refined = {e["pair_id"]: e for e in manifest["pairs"]}
-        externals = sorted(p.name for p in Path(a.external_dir).iterdir() if p.is_dir()) if a.external_dir and \
-            Path(a.external_dir).is_dir() else []
-        embedder = ev.load_clip_embedder(a.clip_weights)
-        lpips_model = ev.load_lpips(a.lpips_weights)
-        rows, methods, not_computed = [], ["proxy"], {}
-        for i in range(len(ds)):
-            item, rec = ds[i], ds.records[i]
-            e = refined.get(item["pair_id"])
-            if e is None:
-                raise DataError(f"{a.refined}: no refined video for pair {item['pair_id']}; rerun inference")
-            n = int(rec["num_frames"])
-            tgt = to_display_frames(item["target"])
-            videos = {"proxy": to_display_frames(item["proxy"])}
-            if rec.get("oracle_proxy"):
-                videos["oracle_proxy"] = _folder_video(root / rec["oracle_proxy"], n, a.exposure_ev)
-            videos["refined"] = to_display_frames(load_frames(Path(e["frames"]), e["num_frames"], a.exposure_ev))
-            for name, b in sorted((e.get("baselines") or {}).items()):
-                videos[name] = to_display_frames(load_frames(Path(b["frames"]), b["num_frames"], a.exposure_ev))
-            for name in externals:
-                v = _folder_video(Path(a.external_dir) / name / item["pair_id"], n, a.exposure_ev)
-                if v is not None:
-                    videos[f"external:{name}"] = v
-            flows = ev.compute_flows(tgt) if n > 1 else None
-            row = {"pair_id": item["pair_id"], "scene_id": rec.get("scene_id"), "clip_id": rec.get("clip_id"),
-                   "target_light": rec.get("target_light"), "motion": rec.get("motion"),
-                   "ae_round_trip_psnr_db": e.get("ae_round_trip_psnr_db")}
-            for name, v in videos.items():
-                if v is None:
-                    continue
-                if v.shape != tgt.shape:
-                    raise DataError(f"pair {item['pair_id']}: method {name} has {v.shape}, target {tgt.shape}; "
-                                    "outputs must match the target's frames and size")
-                res = {"psnr_db": ev.framewise_psnr(v, tgt), "ssim": ev.framewise_ssim(v, tgt),
-                       "lpips": ev.lpips_video(v, tgt, model=lpips_model) if not isinstance(lpips_model, str)
-                       else ev.MetricResult("lpips", None, None, f"not computed: {lpips_model}"),
-                       "t_clip": ev.t_clip(v, embedder=embedder) if not isinstance(embedder, str)
-                       else ev.MetricResult("t_clip", None, None, f"not computed: {embedder}"),
-                       "warp_ssim": ev.warp_ssim(v, flows=flows) if flows is not None
-                       else ev.MetricResult("warp_ssim", None, None, "not computed: a one-frame clip has no motion")}
-                row[name] = {k: r.value for k, r in res.items()}
-                for k, r in res.items():
-                    if r.value is None:
-                        not_computed[k] = r.status.removeprefix("not computed: ")
-                if name not in methods:
-                    methods.append(name)
-            rows.append(row)
-    except (DataError, ValueError) as exc:
-        print(f"evaluate_refiner: {exc}", file=sys.stderr)
-        return 1
+    ds = PairsDataset(a.pairs, a.split, a.exposure_ev, cache=False)
+    manifest = read_json(a.refined)
+    refined = {e["pair_id"]: e for e in manifest["pairs"]}
+    externals = sorted(p.name for p in Path(a.external_dir).iterdir() if p.is_dir()) if a.external_dir and \
+        Path(a.external_dir).is_dir() else []
+    embedder = ev.load_clip_embedder(a.clip_weights)
+    lpips_model = ev.load_lpips(a.lpips_weights)
+    rows, methods, not_computed = [], ["proxy"], {}
+    for i in range(len(ds)):
+        item, rec = ds[i], ds.records[i]
+        e = refined.get(item["pair_id"])
+        if e is None:
+            raise DataError(f"{a.refined}: no refined video for pair {item['pair_id']}; rerun inference")
+        n = int(rec["num_frames"])
+        tgt = to_display_frames(item["target"])
+        videos = {"proxy": to_display_frames(item["proxy"])}
+        if rec.get("oracle_proxy"):
+            videos["oracle_proxy"] = _folder_video(root / rec["oracle_proxy"], n, a.exposure_ev)
+        videos["refined"] = to_display_frames(load_frames(Path(e["frames"]), e["num_frames"], a.exposure_ev))
+        for name, b in sorted((e.get("baselines") or {}).items()):
+            videos[name] = to_display_frames(load_frames(Path(b["frames"]), b["num_frames"], a.exposure_ev))
+        for name in externals:
+            v = _folder_video(Path(a.external_dir) / name / item["pair_id"], n, a.exposure_ev)
+            if v is not None:
+                videos[f"external:{name}"] = v
+        flows = ev.compute_flows(tgt) if n > 1 else None
+        row = {"pair_id": item["pair_id"], "scene_id": rec.get("scene_id"), "clip_id": rec.get("clip_id"),
+               "target_light": rec.get("target_light"), "motion": rec.get("motion"),
+               "ae_round_trip_psnr_db": e.get("ae_round_trip_psnr_db")}
+        for name, v in videos.items():
+            if v is None:
+                continue
+            if v.shape != tgt.shape:
+                raise DataError(f"pair {item['pair_id']}: method {name} has {v.shape}, target {tgt.shape}; "
+                                "outputs must match the target's frames and size")
+            res = {"psnr_db": ev.framewise_psnr(v, tgt), "ssim": ev.framewise_ssim(v, tgt),
+                   "lpips": ev.lpips_video(v, tgt, model=lpips_model) if not isinstance(lpips_model, str)
+                   else ev.MetricResult("lpips", None, None, f"not computed: {lpips_model}"),
+                   "t_clip": ev.t_clip(v, embedder=embedder) if not isinstance(embedder, str)
+                   else ev.MetricResult("t_clip", None, None, f"not computed: {embedder}"),
+                   "warp_ssim": ev.warp_ssim(v, flows=flows) if flows is not None
+                   else ev.MetricResult("warp_ssim", None, None, "not computed: a one-frame clip has no motion")}
+            row[name] = {k: r.value for k, r in res.items()}
+            for k, r in res.items():
+                if r.value is None:
+                    not_computed[k] = r.status.removeprefix("not computed: ")
+            if name not in methods:
+                methods.append(name)
+        rows.append(row)
     mean, ci, vs_proxy = {}, {}, {}
     for m in methods:
         vals = {k: [r[m][k] for r in rows if m in r and r[m].get(k) is not None] for k in METRICS}
@@ -151,4 +146,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "evaluate_refiner", (DataError, ValueError))

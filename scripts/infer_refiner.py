@@ -15,13 +15,12 @@ with the model: OUTDIR/baselines/{regressor,affine_colour}/{pair_id}/{frame:04d}
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import torch
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter.io import DataError, display_to_linear, to_uint8, write_json, write_rgb_exr, write_video
 from lightcrafter.refiner import MissingWeightsError, PairsDataset, load_model, refine_video
@@ -57,15 +56,11 @@ def main() -> int:
     a = ap.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
-    try:
-        model = load_model(a.model, _cli.json_arg(a.config_json))
-        cfg = model.cfg
-        regressor = load_regressor(a.model)
-        affine = load_affine_colour(a.model)
-        ds = PairsDataset(a.pairs, a.split, cfg["data"]["exposure_ev"], cache=False)
-    except (DataError, MissingWeightsError, KeyError, ValueError) as exc:
-        print(f"infer_refiner: {exc}", file=sys.stderr)
-        return 1
+    model = load_model(a.model, _cli.json_arg(a.config_json))
+    cfg = model.cfg
+    regressor = load_regressor(a.model)
+    affine = load_affine_colour(a.model)
+    ds = PairsDataset(a.pairs, a.split, cfg["data"]["exposure_ev"], cache=False)
     out = Path(a.out)
     ev, pad = cfg["data"]["exposure_ev"], cfg["infer"]["pad_frames"]
     entries = []
@@ -110,4 +105,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "infer_refiner", (DataError, MissingWeightsError, KeyError, ValueError))

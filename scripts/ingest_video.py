@@ -9,9 +9,8 @@ Writes OUT/{i:04d}.exr (linear), OUT.mp4 and OUT.json (manifest, last). See ligh
 
 import argparse
 import json
-import sys
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import io
 
@@ -28,16 +27,12 @@ def main() -> int:
     a = ap.parse_args()
     from lightcrafter.ingest import ingest_clip
 
-    try:
-        m = ingest_clip(_cli.json_arg(a.clip_json), a.clip_id, a.out, width=a.width, height=a.height,
-                        num_frames=a.num_frames, short_clips=a.short_clips)
-    except io.DataError as exc:
-        print(f"ingest_video: {exc}", file=sys.stderr)
-        return 1
+    m = ingest_clip(_cli.json_arg(a.clip_json), a.clip_id, a.out, width=a.width, height=a.height,
+                    num_frames=a.num_frames, short_clips=a.short_clips)
     print(f"ingest_video: {a.clip_id}: " + (f"left out: {m['skipped']}" if m.get("skipped")
                                             else f"{m['num_frames']} frames {m['width']}x{m['height']} -> {a.out}"))
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "ingest_video", (io.DataError,))

@@ -10,14 +10,13 @@ OUT/{fused,chunks}/{i:04d}.exr. See lightcrafter/longform.py.
 """
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import io
 
@@ -38,16 +37,12 @@ def main() -> int:
     from lightcrafter.report import side_by_side_video
 
     out = Path(a.out)
-    try:
-        model = load_model(a.model)
-        cfg = model.cfg
-        ev = cfg["data"]["exposure_ev"]
-        n = sum(1 for _ in Path(a.proxy).glob("*.exr"))
-        proxy = load_frames(Path(a.proxy), n, ev)
-        target = to_display_frames(load_frames(Path(a.target), n, ev))
-    except (io.DataError, FileNotFoundError) as exc:
-        print(f"longform: {exc}", file=sys.stderr)
-        return 1
+    model = load_model(a.model)
+    cfg = model.cfg
+    ev = cfg["data"]["exposure_ev"]
+    n = sum(1 for _ in Path(a.proxy).glob("*.exr"))
+    proxy = load_frames(Path(a.proxy), n, ev)
+    target = to_display_frames(load_frames(Path(a.target), n, ev))
     videos, seconds = {"proxy": to_display_frames(proxy)}, {}
     for mode in ("fused", "chunks"):
         gen = torch.Generator().manual_seed(cfg["seed"])
@@ -73,4 +68,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "longform", (io.DataError, FileNotFoundError))

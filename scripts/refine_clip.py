@@ -9,14 +9,13 @@ strip OUT/../strip.png (the given folders | proxy | refined, middle frame) and O
 """
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import io
 
@@ -36,17 +35,13 @@ def main() -> int:
     from lightcrafter.report import side_by_side_video
 
     proxy_dir, out = Path(a.proxy), Path(a.out)
-    try:
-        man = io.read_json(proxy_dir.with_suffix(".json"))
-        if man.get("skipped"):
-            raise io.DataError(f"{proxy_dir}: the proxy was left out ({man['skipped']})")
-        model = load_model(a.model)
-        cfg = model.cfg
-        ev = cfg["data"]["exposure_ev"]
-        proxy = load_frames(proxy_dir, int(man["num_frames"]), ev)
-    except (io.DataError, FileNotFoundError) as exc:
-        print(f"refine_clip: {exc}", file=sys.stderr)
-        return 1
+    man = io.read_json(proxy_dir.with_suffix(".json"))
+    if man.get("skipped"):
+        raise io.DataError(f"{proxy_dir}: the proxy was left out ({man['skipped']})")
+    model = load_model(a.model)
+    cfg = model.cfg
+    ev = cfg["data"]["exposure_ev"]
+    proxy = load_frames(proxy_dir, int(man["num_frames"]), ev)
     gen = torch.Generator().manual_seed(cfg["seed"])
     t0 = time.perf_counter()
     disp = to_display_frames(refine_video(model, proxy[None], cfg, generator=gen)[0])
@@ -73,4 +68,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "refine_clip", (io.DataError, FileNotFoundError))

@@ -10,10 +10,9 @@ out as validation for the error-against-training-time curve (all are used when t
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter.io import DataError
 
@@ -29,24 +28,20 @@ def main() -> int:
     from lightcrafter.clip import read_clip
     from lightcrafter.recon import estimator as est
 
-    try:
-        if len(a.clips) != len(a.videos):
-            raise DataError(f"{len(a.clips)} clips but {len(a.videos)} videos; pass one source video per clip")
-        cfg = est.EstimatorConfig.from_dict(_cli.json_arg(a.config_json))
-        pairs = sorted(zip(a.clips, a.videos))
-        val_pairs = pairs[-1:] if len(pairs) > 1 else pairs
-        train_pairs = pairs[:-1] if len(pairs) > 1 else pairs
-        train = [s for c, v in train_pairs for s in est.load_clip_samples(Path(c).parent, Path(v).with_suffix(""))]
-        val = []
-        for c, v in val_pairs:
-            views, _ = read_clip(Path(c).parent)
-            samples = est.load_clip_samples(Path(c).parent, Path(v).with_suffix(""))
-            val += [(s.rgb.numpy().transpose(1, 2, 0), views[i].buffers, views[i].c2w)
-                    for i, s in enumerate(samples)][::2]
-        model, curve = est.train_estimator(train, val, cfg, log=lambda m: print(m, flush=True))
-    except (DataError, ValueError) as exc:
-        print(f"train_estimator: {exc}", file=sys.stderr)
-        return 1
+    if len(a.clips) != len(a.videos):
+        raise DataError(f"{len(a.clips)} clips but {len(a.videos)} videos; pass one source video per clip")
+    cfg = est.EstimatorConfig.from_dict(_cli.json_arg(a.config_json))
+    pairs = sorted(zip(a.clips, a.videos))
+    val_pairs = pairs[-1:] if len(pairs) > 1 else pairs
+    train_pairs = pairs[:-1] if len(pairs) > 1 else pairs
+    train = [s for c, v in train_pairs for s in est.load_clip_samples(Path(c).parent, Path(v).with_suffix(""))]
+    val = []
+    for c, v in val_pairs:
+        views, _ = read_clip(Path(c).parent)
+        samples = est.load_clip_samples(Path(c).parent, Path(v).with_suffix(""))
+        val += [(s.rgb.numpy().transpose(1, 2, 0), views[i].buffers, views[i].c2w)
+                for i, s in enumerate(samples)][::2]
+    model, curve = est.train_estimator(train, val, cfg, log=lambda m: print(m, flush=True))
     est.save(model, cfg, a.out, {"train_frames": len(train), "val_frames": len(val), "clips": [c for c, _ in pairs]})
     est.write_curve(a.curve, curve, cfg)
     print(f"train_estimator: {len(train)} frames, {cfg.steps} steps -> {a.out}")
@@ -54,4 +49,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "train_estimator", (DataError, ValueError))

@@ -12,12 +12,11 @@ kill resumes from the last checkpoint.
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import torch
 
-import _cli  # noqa: F401  (puts the repository on sys.path)
+import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter.io import DataError, write_json
 from lightcrafter.refiner import MissingWeightsError, resolve_config
@@ -34,13 +33,9 @@ def main() -> int:
     a = ap.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
-    try:
-        cfg = resolve_config(_cli.json_arg(a.config_json))
-        Path(a.out).mkdir(parents=True, exist_ok=True)
-        res = fit_refiner(cfg, a.pairs, a.out, log=_logger(Path(a.out)))
-    except (DataError, MissingWeightsError, KeyError, ValueError) as exc:
-        print(f"train_refiner: {exc}", file=sys.stderr)
-        return 1
+    cfg = resolve_config(_cli.json_arg(a.config_json))
+    Path(a.out).mkdir(parents=True, exist_ok=True)
+    res = fit_refiner(cfg, a.pairs, a.out, log=_logger(Path(a.out)))
     write_json(Path(a.out) / "selection.json", res)
     tr, chosen = res["train"], res["selection"]["chosen"]
     print(f"train_refiner: {tr['steps']} steps ({tr['seconds_per_step']:.3f} s/optimizer step); "
@@ -49,4 +44,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, "train_refiner", (DataError, MissingWeightsError, KeyError, ValueError))

@@ -178,8 +178,8 @@ class SfM(Section):
     sequential_overlap: PositiveInt = Field(10, description="neighbours matched per frame in sequential matching")
     min_registered_fraction: float = Field(0.6, ge=0, le=1, description="below this fraction of registered frames "
                                            "the clip fails")
-    static_motion_px: NonNegativeFloat = Field(0.8, description="median feature motion (pixels) under which the "
-                                               "camera is static")
+    static_motion_px: float = Field(0.8, description="median feature motion (pixels) under which the camera is "
+                                    "static (negative: never static)")
     threads: PositiveInt = Field(1, description="COLMAP threads (1 = bit-reproducible)")
 
 

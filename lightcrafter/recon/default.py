@@ -65,7 +65,9 @@ class DefaultSettings:
             raise ValueError(f"recon.depth_fit={s.depth_fit!r}: use 'scale' or 'affine'")
         if s.normals not in ("predicted", "depth"):
             raise ValueError(f"recon.normals={s.normals!r}: use 'predicted' or 'depth'")
-        SfMSettings(**s.sfm)  # validate
+        from lightcrafter.config import validate_section
+
+        s.sfm = validate_section(SfMSettings, s.sfm, "recon.sfm").model_dump()  # one line naming a bad key
         return s
 
 
