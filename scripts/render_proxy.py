@@ -16,9 +16,8 @@ import _cli
 def main():
     from lightcrafter.io import read_json
     from lightcrafter.proxy.clip import render_clip
+    from lightcrafter.proxy import render_settings
     from lightcrafter.proxy.lighting import lighting_from_spec
-    from lightcrafter.proxy.renderer import RenderSettings
-    from lightcrafter.proxy.visibility import VisibilitySettings
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--clip", required=True, help="clip folder (buffers.json, cameras.json, buffers/)")

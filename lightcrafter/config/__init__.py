@@ -233,12 +233,12 @@ def _has_file(folder: Path, suffixes: tuple[str, ...], max_entries: int = 100000
 def check_startup(config: dict, source: str = "config") -> None:
     """What the run needs on disk, checked before any job starts: data folders, the refiner's model
     folder and its subfolders, weights folders. One line naming the key, the path and the fix."""
-    def folder(key: str, path, what: str, suffixes: tuple[str, ...] | None = None) -> None:
+    def folder(key: str, path, what: str, suffixes: tuple[str, ...] | None = None, other: str = "set it to null") -> None:
         if not path:
             return
         p = Path(path)
         if not p.is_dir():
-            raise ConfigError(f"{source}: key '{key}': folder {p} not found; point it at {what} or set it to null")
+            raise ConfigError(f"{source}: key '{key}': folder {p} not found; point it at {what} or {other}")
         if suffixes and not _has_file(p, suffixes):
             raise ConfigError(f"{source}: key '{key}': {p} holds no {'/'.join(suffixes)} file at any depth; point "
                               f"it at {what}")
@@ -246,7 +246,7 @@ def check_startup(config: dict, source: str = "config") -> None:
     a, s = config["assets"], config["scenes"]
     if a["source"] == "folder":
         folder("assets.dir", a["dir"], "a folder of .glb assets (Objaverse layout: glbs/000-xxx/<uid>.glb)",
-               (".glb",))
+               (".glb",), other="use assets.source: procedural")
     folder("scenes.hdri_dir", s["hdri_dir"], "a folder of .exr environment maps", (".exr",))
     folder("scenes.ground_textures_dir", s["ground_textures_dir"], "a folder of PBR texture-set folders")
     folder("mit.root", config["mit"]["root"], "the MIT Multi-Illumination folder of scene folders")
