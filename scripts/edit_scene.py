@@ -75,12 +75,12 @@ def main() -> int:
         scene_lighting_file(spec, a.light, a.traj, out / "lighting.json")
         views, info = clipmod.read_clip(a.clip)
         if a.kind == "material":
-            obj = next((o for o in spec["objects"] if o["id"] == s.get("object", spec["objects"][0]["id"])), None)
+            obj = next((o for o in spec["objects"] if o["id"] == (s.get("object") or spec["objects"][0]["id"])), None)
             if obj is None:
                 raise io.DataError(f"{a.scene}: no object {s.get('object')!r} to edit; fix edits.material.object")
             centre = [obj["location_m"][0], obj["location_m"][1], 0.5 * obj["height_m"]]
             radius = float(s.get("radius_scale", 1.2)) * max(obj["footprint_radius_m"], 0.5 * obj["height_m"])
-            edit = {k: s[k] for k in s if k.endswith(("_override", "_multiplier"))}
+            edit = {k: s[k] for k in s if k.endswith(("_override", "_multiplier")) and s[k] is not None}
             views, frac = editing.material_edit_views(views, centre, radius, edit)
             record.update({"object": obj["id"], "centre_m": centre, "radius_m": radius, "edit": edit,
                            "pixels_edited": frac})
