@@ -29,6 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     what.add_argument("--out", metavar="OUT_DIR", help="render RGB under --light into this trajectory folder")
     ap.add_argument("--light", help="lighting id (with --out)")
     ap.add_argument("--threads", type=int, default=None, help="Cycles CPU threads (default: all)")
+    ap.add_argument("--device", default="cpu", help="Cycles device: auto | cpu | cuda | optix (config render.device)")
     args = ap.parse_args(argv)
     if args.out and not args.light:
         ap.error("--out needs --light")
@@ -38,10 +39,10 @@ def main(argv: list[str] | None = None) -> int:
         from lightcrafter.blender import render
 
         if args.buffers:
-            n = render.render_buffers(spec, args.traj, args.buffers, threads=args.threads)
+            n = render.render_buffers(spec, args.traj, args.buffers, threads=args.threads, device=args.device)
             what_done = f"{n} buffer frame(s)"
         else:
-            n = render.render_rgb(spec, args.traj, args.light, args.out, threads=args.threads)
+            n = render.render_rgb(spec, args.traj, args.light, args.out, threads=args.threads, device=args.device)
             what_done = f"{n} RGB frame(s) under {args.light}"
     except DataError as exc:
         print(f"render_gt: {exc}", file=sys.stderr)

@@ -279,6 +279,30 @@ def test_cli_bad_input_one_line_error_no_manifest(scene, tmp_path):
     assert not list(tmp_path.glob("o*/**/*.json"))
 
 
+def test_cycles_device_selection_on_a_node_without_gpus():
+    """auto falls back to the CPU; a GPU kind that was asked for and is absent is one line naming it."""
+    from lightcrafter.blender import build
+
+    assert build.select_device("cpu") == "CPU" and build.select_device("auto") == "CPU"
+    for kind in ("cuda", "optix"):
+        with pytest.raises(io.DataError, match=f"no {kind.upper()} device on this node"):
+            build.select_device(kind)
+    with pytest.raises(io.DataError, match="use one of"):
+        build.select_device("metal")
+
+
+@pytest.mark.slow
+def test_cli_records_the_device_and_refuses_a_missing_gpu(scene, tmp_path):
+    _, work = scene
+    res = _run_cli("--scene", work / "scene.json", "--traj", "static", "--buffers", tmp_path / "cpu", "--device", "auto")
+    assert res.returncode == 0, res.stderr
+    assert io.read_json(tmp_path / "cpu" / "buffers.json")["producer"]["device"] == "CPU"
+    res = _run_cli("--scene", work / "scene.json", "--traj", "static", "--buffers", tmp_path / "gpu", "--device", "cuda")
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 1 and len(lines) == 1 and "render.device='cuda'" in lines[0], res.stderr
+    assert not (tmp_path / "gpu" / "buffers.json").exists()
+
+
 @pytest.mark.slow
 def test_cli_renders_static_buffers(scene, tmp_path):
     _, work = scene

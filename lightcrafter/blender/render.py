@@ -104,9 +104,10 @@ def render_layers() -> dict[str, np.ndarray]:
     return {k.split(".", 1)[1]: v for k, v in ch.items()}
 
 
-def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = None) -> int:
+def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = None, device: str = "cpu") -> int:
     """Render G-buffers of the trajectory's distinct frames, cameras.json and buffers.json into ``out_dir``.
 
+    ``device``: Cycles device (build.select_device); the device used is written into the manifest.
     Returns the number of buffer frames rendered (frames already complete are skipped).
     """
     out_dir = Path(out_dir)
@@ -118,10 +119,11 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
               "filter_px": BUFFER_FILTER_WIDTH_PX}
     frames = clip.buffer_frames(out_dir, inputs)
     todo = frames.missing(distinct, io.read_buffers)
+    used = None
     if todo:
         built = build.build_scene(spec, light_id=None)
         frames.stamp()
-        build.configure_render(
+        used = build.configure_render(
             spec,
             samples=BUFFER_SPP,
             max_bounces=0,
@@ -129,6 +131,7 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
             film_transparent=True,
             buffers=True,
             threads=threads,
+            device=device,
         )
         for i in todo:
             build.set_frame(built, traj["frames"][i])
@@ -139,15 +142,27 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
         fps=float(spec.get("fps", 24)), camera_static=bool(traj.get("camera_static", False)),
         scene_static=bool(traj.get("scene_static", True)), units="metres", consistent_depth=True,
         producer={"stage": "blender", "engine": "cycles", "spp": BUFFER_SPP,
-                  "pixel_filter": f"box {BUFFER_FILTER_WIDTH_PX} px"},
+                  "pixel_filter": f"box {BUFFER_FILTER_WIDTH_PX} px", "device": _device_record(out_dir, used)},
         content_id=io.fingerprint(inputs),
         extra={"scene_id": spec.get("scene_id"), "trajectory": traj_id, "motion": traj.get("motion")},
     )
     return len(todo)
 
 
+def _device_record(manifest_dir: Path, used: str | None, manifest: str = "buffers.json") -> str | None:
+    """The Cycles device of this render; a rerun that rendered nothing keeps the previous manifest's."""
+    if used is not None:
+        return used
+    old = Path(manifest_dir) / manifest
+    if old.is_file():
+        data = io.read_json(old)
+        return (data.get("producer") or data.get("render") or {}).get("device")
+    return None
+
+
 def render_rgb(
-    spec: dict, traj_id: str, light_id: str, out_dir, *, threads: int | None = None, spp: int | None = None
+    spec: dict, traj_id: str, light_id: str, out_dir, *, threads: int | None = None, spp: int | None = None,
+    device: str = "cpu",
 ) -> int:
     """Render linear HDR RGB frames of the trajectory under lighting ``light_id``, the preview and manifest.
 
@@ -171,10 +186,11 @@ def render_rgb(
               "filter_px": RGB_FILTER_WIDTH_PX}
     folder = clip.FrameFolder(out_dir / "rgb" / light_id, inputs)
     todo = folder.missing(range(n), io.read_rgb_exr)
+    used = None
     if todo:
         built = build.build_scene(spec, light_id=light_id)
         folder.stamp()
-        build.configure_render(
+        used = build.configure_render(
             spec,
             samples=spp,
             max_bounces=int(rcfg.get("max_bounces", 4)),
@@ -184,6 +200,7 @@ def render_rgb(
             threads=threads,
             denoiser=denoiser,
             clamp_indirect=clamp_indirect,
+            device=device,
         )
         for i in todo:
             build.set_frame(built, traj["frames"][i])
@@ -216,6 +233,7 @@ def render_rgb(
                 "pixel_filter": f"blackman-harris {RGB_FILTER_WIDTH_PX} px",
                 "denoiser": denoiser,
                 "clamp_indirect": clamp_indirect,
+                "device": _device_record(out_dir / "rgb", used, f"{light_id}.json"),
             },
         },
     )

@@ -144,6 +144,9 @@ class Render(Section):
                                               "normal guided)")
     clamp_indirect: NonNegativeFloat = Field(0.0, description="maximum radiance of one indirect-light sample "
                                              "(0 = off)")
+    device: Literal["auto", "cpu", "cuda", "optix"] = Field(
+        "cpu", description="Cycles device: cpu; cuda or optix (every GPU of that kind; a job that finds none "
+        "fails); auto (OptiX, then CUDA, then the CPU). The device used is written into each clip manifest")
 
 
 class Proxy(Section):

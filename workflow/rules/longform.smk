@@ -46,9 +46,10 @@ rule longform_buffers:
     params:
         script=script_path("render_gt.py"),
         out_dir=parent_dir,
+        device=config["render"]["device"],
     shell:
         "python {params.script} --scene {input.scene} --traj t0 --buffers {params.out_dir} "
-        "--threads {threads} > {log} 2>&1"
+        "--threads {threads} --device {params.device} > {log} 2>&1"
 
 
 rule longform_rgb:
@@ -70,9 +71,10 @@ rule longform_rgb:
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,
+        device=config["render"]["device"],
     shell:
         "python {params.script} --scene {input.scene} --traj t0 --light {wildcards.light} "
-        "--out {params.out_dir} --threads {threads} > {log} 2>&1"
+        "--out {params.out_dir} --threads {threads} --device {params.device} > {log} 2>&1"
 
 
 rule longform_proxy:

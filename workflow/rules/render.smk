@@ -21,9 +21,10 @@ rule render_buffers:
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,
+        device=config["render"]["device"],
     shell:
         "python {params.script} --scene {input.scene} --traj {wildcards.traj} "
-        "--buffers {params.out_dir} --threads {threads} > {log} 2>&1"
+        "--buffers {params.out_dir} --threads {threads} --device {params.device} > {log} 2>&1"
 
 
 rule render_rgb:
@@ -50,9 +51,10 @@ rule render_rgb:
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,
+        device=config["render"]["device"],
     shell:
         "python {params.script} --scene {input.scene} --traj {wildcards.traj} "
-        "--light {wildcards.light} --out {params.out_dir} --threads {threads} > {log} 2>&1"
+        "--light {wildcards.light} --out {params.out_dir} --threads {threads} --device {params.device} > {log} 2>&1"
 
 
 rule summarize_ground_truth:
