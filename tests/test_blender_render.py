@@ -279,6 +279,22 @@ def test_cli_bad_input_one_line_error_no_manifest(scene, tmp_path):
     assert not list(tmp_path.glob("o*/**/*.json"))
 
 
+@pytest.mark.parametrize("names, base", [
+    (["rock_wall_diff_1k.jpg", "rock_wall_rough_1k.jpg", "rock_wall_nor_gl_1k.jpg", "rock_wall_disp_1k.png"],
+     "rock_wall_diff_1k.jpg"),  # PolyHaven
+    (["Ground037_1K-JPG_Color.jpg", "Ground037_1K-JPG_Roughness.jpg", "Ground037_1K-JPG_NormalGL.jpg"],
+     "Ground037_1K-JPG_Color.jpg"),  # ambientCG
+])
+def test_texture_sets_of_polyhaven_and_ambientcg_are_recognised(tmp_path, names, base):
+    from lightcrafter.blender import build
+
+    for n in names:
+        (tmp_path / n).write_bytes(b"")
+    found = {k: p.name for k, p in build._texture_set_files({"dir": str(tmp_path)}).items()}
+    assert found["basecolor"] == base and "rough" in found["roughness"].lower()
+    assert "nor" in found["normal"].lower() and "disp" not in " ".join(found.values()).lower()
+
+
 def test_cycles_device_selection_on_a_node_without_gpus():
     """auto falls back to the CPU; a GPU kind that was asked for and is absent is one line naming it."""
     from lightcrafter.blender import build

@@ -46,7 +46,8 @@ from lightcrafter.scenes import GROUND_PATTERNS, PRIMITIVE_SHAPES, lighting, tra
 AOV_ALBEDO, AOV_ROUGHNESS, AOV_METALLIC = "albedo", "roughness", "metallic"
 # File-name keys (lower case, matched against the stem) for texture-set ground materials.
 TEXTURE_SET_KEYS = {
-    "basecolor": ("basecolor", "base_color", "albedo", "diffuse", "color", "col"),
+    # PolyHaven: <name>_diff_1k, _rough_, _nor_gl_; ambientCG: <name>_Color, _Roughness, _NormalGL, _Metalness
+    "basecolor": ("basecolor", "base_color", "albedo", "diffuse", "diff", "color", "col"),
     "roughness": ("roughness", "rough"),
     "normal": ("normalgl", "normal_gl", "normal", "nor"),
     "metallic": ("metallic", "metalness", "metal"),
