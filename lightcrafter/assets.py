@@ -322,7 +322,7 @@ def curate_asset(path: str | Path, settings: CurationSettings):
 
 def curate_folder(src_dir: str | Path, out_dir: str | Path, manifest_path: str | Path,
                   settings: CurationSettings, logger=print) -> dict:
-    """Curate every ``*.glb`` in ``src_dir`` into ``out_dir`` and write the manifest (JSON).
+    """Curate every ``*.glb`` under ``src_dir`` (at any depth) into ``out_dir`` and write the manifest (JSON).
 
     Manifest: ``{"settings": ..., "accepted": [{id, path, sha256, ...record}], "rejected":
     [{id, source, reason}]}``, sorted by id so equal inputs give identical manifests.
@@ -332,9 +332,18 @@ def curate_folder(src_dir: str | Path, out_dir: str | Path, manifest_path: str |
     src_dir, out_dir = Path(src_dir), Path(out_dir)
     if not src_dir.is_dir():
         raise DataError(f"{src_dir}: asset folder not found; set assets.dir to a folder of .glb files")
-    files = sorted(src_dir.glob("*.glb"))
+    # At any depth (Objaverse stores glbs/000-xxx/<uid>.glb); hidden files are a writer's temporaries.
+    files = sorted((f for f in src_dir.rglob("*.glb")
+                    if not any(part.startswith(".") for part in f.relative_to(src_dir).parts)),
+                   key=lambda f: f.relative_to(src_dir).as_posix())
     if not files:
-        raise DataError(f"{src_dir}: no .glb files; set assets.dir to a folder of .glb files")
+        raise DataError(f"{src_dir}: no .glb file at any depth; set assets.dir to a folder of .glb files")
+    stems: dict[str, Path] = {}
+    for f in files:
+        if f.stem in stems:
+            raise DataError(f"{src_dir}: two assets are named {f.stem!r} ({stems[f.stem]} and {f}); asset ids are "
+                            "file names, rename one")
+        stems[f.stem] = f
     accepted, rejected = [], []
     for f in files:
         aid = f.stem
@@ -351,6 +360,6 @@ def curate_folder(src_dir: str | Path, out_dir: str | Path, manifest_path: str |
         logger(f"accepted {f}: {record['faces_in']} -> {record['faces_out']} faces")
         accepted.append({"id": aid, "source": str(f), "path": str(dst),
                          "sha256": hashlib.sha256(data).hexdigest(), **record})
-    manifest = {"settings": settings.__dict__, "accepted": accepted, "rejected": rejected}
+    manifest = {"settings": settings.model_dump(), "accepted": accepted, "rejected": rejected}
     write_json(manifest_path, manifest)
     return manifest

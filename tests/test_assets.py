@@ -1,6 +1,7 @@
 """Asset generation and curation: rejection reasons, decimation, normalisation, determinism."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -72,6 +73,27 @@ def test_missing_folder_is_a_one_line_error(tmp_path):
 
     with pytest.raises(DataError, match="asset folder not found"):
         assets.curate_folder(tmp_path / "nope", tmp_path / "o", tmp_path / "m.json", assets.CurationSettings())
+
+
+def test_objaverse_layout_is_read_at_any_depth_and_an_empty_tree_is_one_line(tmp_path):
+    """Objaverse stores glbs/000-xxx/<uid>.glb: nested assets are curated; a tree without any GLB, or two
+    assets of one name, is a one-line error naming the folder."""
+    from lightcrafter.io import DataError
+
+    src = tmp_path / "glbs"
+    flat = assets.write_procedural_assets(tmp_path / "gen", seed=0, count=3)
+    for i, p in enumerate(flat):
+        (src / f"000-{i:03d}").mkdir(parents=True)
+        (src / f"000-{i:03d}" / f"uid{i}.glb").write_bytes(Path(p).read_bytes())
+    m = assets.curate_folder(src, tmp_path / "cur", tmp_path / "m.json", assets.CurationSettings(), logger=lambda m: None)
+    assert sorted(a["id"] for a in m["accepted"] + m["rejected"]) == ["uid0", "uid1", "uid2"]
+    (tmp_path / "empty" / "000-000").mkdir(parents=True)
+    with pytest.raises(DataError, match="no .glb file at any depth"):
+        assets.curate_folder(tmp_path / "empty", tmp_path / "o", tmp_path / "m2.json", assets.CurationSettings())
+    (src / "000-009").mkdir()
+    (src / "000-009" / "uid0.glb").write_bytes(Path(flat[0]).read_bytes())
+    with pytest.raises(DataError, match="two assets are named 'uid0'"):
+        assets.curate_folder(src, tmp_path / "o", tmp_path / "m3.json", assets.CurationSettings())
 
 
 def test_manifest_is_deterministic(curated, tmp_path):
