@@ -25,7 +25,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", required=True, help="folder of linear EXR frames (or its manifest .json)")
     ap.add_argument("--out", required=True, help="clip folder to write")
-    ap.add_argument("--backend", default="default", choices=["default", "paper_stack"])
+    from lightcrafter.recon import BACKENDS
+
+    ap.add_argument("--backend", default="default", choices=sorted(BACKENDS))
     ap.add_argument("--estimator", default=None, help="G-buffer estimator weights (default backend)")
     ap.add_argument("--fps", type=float, default=24.0)
     ap.add_argument("--scene-static", type=int, choices=[0, 1], default=1, help="1: no object moves (video metadata)")
@@ -39,6 +41,7 @@ def main() -> int:
     name = a.name or out.name
     from lightcrafter.clip import write_skipped
     from lightcrafter.recon.cameras import ReconstructionError
+    from lightcrafter.recon.paper_stack import ToolError
 
     try:
         man = io.read_json(frames.with_suffix(".json")) if frames.with_suffix(".json").is_file() else {}
@@ -71,7 +74,7 @@ def main() -> int:
             m = onto_video_grid(out / "tool_grid", out, u8.shape[2], u8.shape[1])
             if (out / "tool_grid" / "envmap_init.exr").is_file():
                 shutil.copyfile(out / "tool_grid" / "envmap_init.exr", out / "envmap_init.exr")
-    except ReconstructionError as exc:
+    except (ReconstructionError, ToolError) as exc:  # the video, or a paper-stack tool on it, failed
         if not a.skip_failed:
             print(f"reconstruct: {exc}", file=sys.stderr)
             return 1

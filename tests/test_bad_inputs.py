@@ -2,6 +2,7 @@
 non-finite, negative or black texels, ground-texture folders without a base colour, a dense asset far from
 the origin, and videos that structure from motion cannot reconstruct."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -108,3 +109,27 @@ def test_video_without_texture_is_left_out_or_a_one_line_error(tmp_path, kind):
     assert p.returncode == 0, p.stderr[-1500:]
     man = io.read_json(tmp_path / "clip" / "buffers.json")
     assert man["skipped"] and f"{kind}_c0" in man["skipped"]
+
+
+def test_a_failing_paper_stack_tool_leaves_its_clip_out_and_counted(tmp_path):
+    """A tool command of the paper stack that fails: with --skip-failed (config recon.skip_failed, the
+    default) the clip is left out with a one-line reason naming the tool, so one bad clip does not stop a
+    cluster run; without it the job fails with one line."""
+    frames = tmp_path / "video"
+    rng = np.random.default_rng(0)
+    for i in range(5):
+        io.write_rgb_exr(frames / f"{i:04d}.exr", rng.uniform(0, 1, (32, 48, 3)).astype(np.float32))
+    settings = {"commands": {"megasam": "sh -c 'exit 3' {frames} {out}",
+                             "diffusion_renderer": "true {frames_root} {out}",
+                             "diffusion_light": "true {frame0_dir} {out}"}}
+    cmd = [sys.executable, str(REPO / "scripts" / "reconstruct.py"), "--frames", str(frames), "--out",
+           str(tmp_path / "clip"), "--backend", "paper_stack", "--name", "bad_c0",
+           "--settings-json", json.dumps(settings)]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in p.stderr.splitlines() if ln.startswith("reconstruct:")]
+    assert p.returncode == 1 and len(lines) == 1 and "megasam" in lines[0] and "exit 3" in lines[0], p.stderr[-1500:]
+    assert not (tmp_path / "clip" / "buffers.json").exists()
+    p = subprocess.run(cmd + ["--skip-failed"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-1500:]
+    reason = io.read_json(tmp_path / "clip" / "buffers.json")["skipped"]
+    assert "megasam" in reason and "bad_c0" in reason
