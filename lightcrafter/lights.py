@@ -82,10 +82,17 @@ def hdri_white_radiance(ref: str) -> float:
 
     env = envmap.load(resolve_hdri(ref))
     h, w = env.shape[:2]
-    cos_up = np.clip(envmap.pixel_directions(h, w)[..., 2], 0.0, None)
-    solid_angle = (np.pi / h) * (2 * np.pi / w) * np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
-    luminance = env @ np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / linear sRGB luminance weights
-    e_over_pi = float((luminance * cos_up * solid_angle).sum() / np.pi)
+    # The weight cos(up) x solid angle depends on the row only (lat-long map): per-row sums of float32
+    # luminance in blocks of rows, accumulated in float64. Exact, and an 8k or 16k PolyHaven map needs no
+    # full-size float64 arrays (the former per-pixel direction array alone was 3 GB at 16k).
+    rows = np.arange(h)
+    cos_up = np.clip(envmap.pixel_directions(h, 1)[:, 0, 2], 0.0, None)
+    solid_angle = (np.pi / h) * (2 * np.pi / w) * np.sin(np.pi * (rows + 0.5) / h)
+    weights = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709 / linear sRGB luminance weights
+    row_sums = np.empty(h, np.float64)
+    for r0 in range(0, h, 256):
+        row_sums[r0:r0 + 256] = (env[r0:r0 + 256] @ weights).sum(axis=1, dtype=np.float64)
+    e_over_pi = float((row_sums * cos_up * solid_angle).sum() / np.pi)
     if not e_over_pi > 0:
         raise DataError(f"{ref}: the HDRI's upper hemisphere is black; it cannot light a scene, remove it")
     return e_over_pi
