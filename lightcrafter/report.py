@@ -30,11 +30,15 @@ from pathlib import Path
 import numpy as np
 
 from .io import atomic_path, read_json, write_json, write_text
-from .datasets import VARIANTS
+from .datasets import BENCHMARKS, VARIANTS
 
 METRIC_LABELS = {"psnr_db": ("PSNR", True), "ssim": ("SSIM", True), "lpips": ("LPIPS", False),
                  "t_clip": ("T-CLIP", True), "warp_ssim": ("Warp-SSIM", True)}
-TABLE_METRICS = {"synthetic": ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim"), "real": ("psnr_db", "ssim", "lpips")}
+# Table columns per held-out benchmark; the tables iterate the registry (lightcrafter.datasets.BENCHMARKS), and a
+# benchmark without results (e.g. mit without mit.root) has no columns.
+TABLE_METRICS = {"synthetic": ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim"), "real": ("psnr_db", "ssim", "lpips"),
+                 "mit": ("psnr_db", "ssim", "lpips")}
+TABLE_BENCHMARKS = tuple(b for b in BENCHMARKS if b in TABLE_METRICS)
 METHOD_LABELS = {"proxy": "PBR proxy (Phi buffers)", "oracle_proxy": "PBR proxy (ground-truth buffers)",
                  "refined": "Refined (LightCrafter)", "regressor": "One-step regressor (same network)",
                  "affine_colour": "Affine colour fit of the proxy"}
@@ -122,7 +126,7 @@ def _cell(mean: dict, ci: dict, method: str, metric: str):
     return v, c
 
 
-def _table_grid(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=("synthetic", "real")):
+def _table_grid(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=TABLE_BENCHMARKS):
     """The cells of one table: columns (bench, metric), values[(label, bench, metric)] = (mean, ci), best per column."""
     cols = [(b, m) for b in benches for m in TABLE_METRICS[b] if b in {k[0] for k in _bench_keys(evals)}]
     values = {}
@@ -143,7 +147,7 @@ def _is_best(best: dict, b: str, m: str, v: float) -> bool:
     return best.get((b, m)) is not None and bool(np.isclose(v, best[(b, m)]))
 
 
-def metrics_table(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=("synthetic", "real")) -> str:
+def metrics_table(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=TABLE_BENCHMARKS) -> str:
     """One table: rows (label, variant, method); columns per benchmark and metric; best per column bold."""
     cols, values, best = _table_grid(evals, rows, benches)
     if not cols:
@@ -168,7 +172,7 @@ def metrics_table(evals: dict[str, dict], rows: list[tuple[str, str, str]], benc
 
 
 def metrics_table_markdown(evals: dict[str, dict], rows: list[tuple[str, str, str]],
-                           benches=("synthetic", "real")) -> str:
+                           benches=TABLE_BENCHMARKS) -> str:
     """The same table as :func:`metrics_table` in Markdown (best per column in bold, interval in brackets)."""
     cols, values, best = _table_grid(evals, rows, benches)
     if not cols:

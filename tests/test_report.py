@@ -149,3 +149,17 @@ def test_report_writes_tables_markdown_and_orderings(tmp_path):
     orderings = json.loads((r / "report" / "orderings.json").read_text())
     assert {o["verdict"] for o in orderings} <= {"holds on the mean", "reversed on the mean"}
     assert next(o for o in orderings if o["ordering"].startswith("full > no_synthetic"))["verdict"] == "holds on the mean"
+
+
+def test_tables_follow_the_registries_mit_results_reach_them():
+    """Rows come from the dataset-variant registry and columns from the held-out registry: a variant or the
+    MIT benchmark with results appears without a change to the report."""
+    from lightcrafter import datasets as ds
+    from lightcrafter.report import VARIANT_LABELS, metrics_table_markdown
+
+    assert list(VARIANT_LABELS) == list(ds.VARIANTS)
+    evals = {("full", "synthetic"): {"mean": {"refined": {"psnr_db": 20.0}}, "ci": {}},
+             ("full", "mit"): {"mean": {"refined": {"psnr_db": 17.5, "ssim": 0.6}}, "ci": {}}}
+    text = metrics_table_markdown(evals, [("Ours (full)", "full", "refined")])
+    assert "mit PSNR" in text and "17.5" in text and "synthetic PSNR" in text
+    assert "real PSNR" not in text  # no real results: no columns
