@@ -22,8 +22,7 @@ from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativ
 from ..datasets import BENCHMARKS, VARIANTS
 from ..recon import BACKENDS
 from ..recon.paper_stack import backend as _ps, diffusion_light as _dl, diffusion_renderer as _dr, megasam as _ms
-from ..refiner.config import PRESETS, RefinerSettings
-from . import deep_merge
+from ..refiner.config import PRESETS, RefinerSettings, apply_preset
 from ..scenes import MOTIONS
 
 # Registries as types: a value outside the registry is a one-line error naming the known ones.
@@ -441,22 +440,15 @@ class Refiner(RefinerSettings):
     @model_validator(mode="before")
     @classmethod
     def _apply_preset(cls, data):
-        """Model defaults <- the preset's values <- the section's own keys."""
-        if not isinstance(data, dict):
-            return data
+        """Model defaults <- the preset's values <- the section's own keys (unknown keys stay, for the
+        one-line error that names them)."""
+        if not isinstance(data, dict) or data.get("preset", "paper") not in PRESETS:
+            return data  # the Literal reports an unknown preset
         data = dict(data)
-        preset = data.get("preset", "paper")
-        if preset not in PRESETS:
-            return data  # the Literal reports it
         resources = data.pop("resources", None)
-        base = RefinerSettings().model_dump()
-        base["preset"] = preset
-        merged = deep_merge(deep_merge(base, PRESETS[preset]), data)  # unknown keys stay: extra=forbid names them
+        merged = apply_preset(data, "paper", strict=False)
         if resources is not None:
             merged["resources"] = resources
-        if merged["model"]["proxy_anchor"] == "none":
-            # without an anchor the transformer's output is the whole prediction: nothing to weigh
-            merged["infer"]["residual_scale"], merged["select"]["residual_scales"] = 1.0, [1.0]
         return merged
 
 

@@ -282,27 +282,40 @@ def _merge(base: dict, over: dict, path: str = "") -> dict:
     return out
 
 
-def resolve_config(overrides: dict | None = None) -> dict:
-    """Model defaults <- preset <- overrides (deep merge), validated by :class:`RefinerSettings`.
-
-    Returns a plain dict of every key. Raises KeyError naming an unknown key at any depth and
-    ValueError naming a key whose value has the wrong type or is out of range."""
-    overrides = dict(overrides or {})
-    preset = overrides.get("preset", "tiny")
+def apply_preset(section: dict | None, default_preset: str = "tiny", strict: bool = True) -> dict:
+    """The model's defaults, then the values of the preset the section names (``default_preset`` when it
+    names none), then the section's own keys (deep merge; ``transformer`` and ``scheduler`` key by key).
+    Without a proxy anchor the transformer's output is the whole prediction, so the residual scale is 1.
+    ``strict``: an unknown key raises KeyError naming it (else it is kept, for pydantic to name)."""
+    section = dict(section or {})
+    preset = section.get("preset", default_preset)
     if preset not in PRESETS:
         raise KeyError(f"unknown refiner preset {preset!r}; choose one of {sorted(PRESETS)}")
     base = _base()
-    cfg = _merge(_merge(base, PRESETS[preset]), overrides)
+    base["preset"] = preset
+    if strict:
+        cfg = _merge(_merge(base, PRESETS[preset]), section)
+    else:
+        from lightcrafter.config import deep_merge
+
+        cfg = deep_merge(deep_merge(base, PRESETS[preset]), section)
+    if isinstance(cfg.get("model"), dict) and cfg["model"].get("proxy_anchor") == "none":
+        cfg["infer"]["residual_scale"], cfg["select"]["residual_scales"] = 1.0, [1.0]
+    return cfg
+
+
+def resolve_config(overrides: dict | None = None) -> dict:
+    """:func:`apply_preset` (default preset ``tiny``), validated by :class:`RefinerSettings`.
+
+    Returns a plain dict of every key. Raises KeyError naming an unknown key at any depth and
+    ValueError naming a key whose value has the wrong type or is out of range."""
+    cfg = apply_preset(overrides, "tiny")
     try:
-        cfg = RefinerSettings.model_validate(cfg).model_dump()
+        return RefinerSettings.model_validate(cfg).model_dump()
     except ValidationError as exc:
         err = exc.errors()[0]
         key = ".".join(str(x) for x in err["loc"]) or "<refiner>"
         raise ValueError(f"{key}: {err['msg']}") from None
-    if cfg["model"]["proxy_anchor"] == "none":
-        # without an anchor the transformer's output is the whole prediction: nothing to weigh
-        cfg["infer"]["residual_scale"], cfg["select"]["residual_scales"] = 1.0, [1.0]
-    return cfg
 
 
 def key_docs(model: type[BaseModel] = RefinerSettings, prefix: str = "") -> dict[str, str]:
