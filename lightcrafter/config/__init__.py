@@ -72,29 +72,45 @@ def _fmt_loc(loc) -> str:
     return ".".join(str(x) for x in loc if not (isinstance(x, str) and x.startswith("function-")))
 
 
-def _known_keys(model, loc) -> list[str]:
-    """Field names of the sub-model at ``loc`` (for 'unknown key' messages)."""
+def _model_in(annotation):
+    """The pydantic model a field's annotation holds, at any depth (``Optional[list[RealVideo]]``), or None."""
+    import typing
+
     from pydantic import BaseModel
 
-    m = model
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        found = _model_in(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def _known_keys(model, loc) -> list[str]:
+    """Field names of the sub-model that holds the last key of ``loc`` (for 'unknown key' messages)."""
     for part in loc[:-1]:
-        if isinstance(part, int):
+        if isinstance(part, int):  # a list index: same item model
             continue
-        f = m.model_fields.get(part) if isinstance(m, type) and issubclass(m, BaseModel) else None
-        if f is None:
+        field = model.model_fields.get(part)
+        model = _model_in(field.annotation) if field is not None else None
+        if model is None:
             return []
-        ann = f.annotation
-        for cand in (ann, *getattr(ann, "__args__", ())):
-            for c in (cand, *getattr(cand, "__args__", ())):
-                if isinstance(c, type) and issubclass(c, BaseModel):
-                    m = c
-                    break
-            else:
-                continue
-            break
-        else:
-            return []
-    return sorted(m.model_fields) if isinstance(m, type) and issubclass(m, BaseModel) else []
+    return sorted(model.model_fields)
+
+
+def describe_error(exc, model) -> tuple[str, str, str]:
+    """(dotted key, kind, what is wrong) of the first error of a pydantic ValidationError of ``model``, kind
+    'unknown' | 'missing' | 'invalid': what every one-line config message is built from."""
+    err = exc.errors()[0]
+    key = _fmt_loc(err["loc"])
+    if err["type"] == "extra_forbidden":
+        return key, "unknown", f"known keys here: {_known_keys(model, list(err['loc']))}"
+    if err["type"] == "missing":
+        return key, "missing", "is required"
+    got = err.get("input")
+    got = "" if isinstance(got, (dict, list)) or got is None else f" (got {got!r})"
+    return key, "invalid", err["msg"].removeprefix("Value error, ") + got
 
 
 def validate(raw: dict, source: str = "config") -> dict:
@@ -107,18 +123,14 @@ def validate(raw: dict, source: str = "config") -> dict:
     try:
         cfg = Config.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        key = _fmt_loc(err["loc"]) or "<top level>"
-        if err["type"] == "extra_forbidden":
-            known = _known_keys(Config, [x for x in err["loc"]])
-            raise ConfigError(f"{source}: unknown key '{key}'; known keys here: {known}; remove it or fix its "
-                              "spelling (see config/README.md)") from None
-        if err["type"] == "missing":
+        key, kind, what = describe_error(exc, Config)
+        key = key or "<top level>"
+        if kind == "unknown":
+            raise ConfigError(f"{source}: unknown key '{key}'; {what}; remove it or fix its spelling "
+                              "(see config/README.md)") from None
+        if kind == "missing":
             raise ConfigError(f"{source}: key '{key}' is required; add it (see config/README.md)") from None
-        msg = err["msg"].removeprefix("Value error, ")
-        got = err.get("input")
-        got = "" if isinstance(got, (dict, list)) or got is None else f" (got {got!r})"
-        raise ConfigError(f"{source}: key '{key}': {msg}{got}; fix it (see config/README.md)") from None
+        raise ConfigError(f"{source}: key '{key}': {what}; fix it (see config/README.md)") from None
     out = cfg.model_dump(mode="json")
     check_semantics(out, source)
     return out
@@ -126,16 +138,14 @@ def validate(raw: dict, source: str = "config") -> dict:
 
 def validate_section(model, data: dict | None, key: str):
     """One section (a model of :mod:`.models`) from a dict, e.g. the settings a script was handed;
-    a :class:`ConfigError` naming ``key.<field>`` otherwise."""
+    a :class:`ConfigError` (a ValueError) naming ``key.<field>`` otherwise."""
     from pydantic import ValidationError
 
     try:
         return model.model_validate(data or {})
     except ValidationError as exc:
-        err = exc.errors()[0]
-        sub = _fmt_loc(err["loc"])
-        what = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
-        raise ConfigError(f"{key}.{sub}: {what}; known keys: {sorted(model.model_fields)}") from None
+        sub, kind, what = describe_error(exc, model)
+        raise ConfigError(f"{key}.{sub}: {'unknown key; ' if kind == 'unknown' else ''}{what}") from None
 
 
 def check_semantics(config: dict, source: str = "config") -> None:

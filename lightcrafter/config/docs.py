@@ -12,7 +12,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from . import REPO, raw_config, validate
+from . import REPO, _model_in, raw_config, validate
 
 README = REPO / "config" / "README.md"
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.json"
@@ -58,22 +58,6 @@ DiffusionRenderer: `{{frames}}` or `{{frames_root}}`; DiffusionLight: `{{frame0}
 """
 
 
-def _sub_model(annotation) -> type[BaseModel] | None:
-    for cand in (annotation, *typing.get_args(annotation)):
-        if isinstance(cand, type) and issubclass(cand, BaseModel):
-            return cand
-    return None
-
-
-def _list_item_model(annotation) -> type[BaseModel] | None:
-    if typing.get_origin(annotation) is list:
-        return _sub_model(typing.get_args(annotation)[0])
-    for cand in typing.get_args(annotation):
-        if typing.get_origin(cand) is list:
-            return _sub_model(typing.get_args(cand)[0])
-    return None
-
-
 def _fmt(v) -> str:
     if v is None:
         return "null"
@@ -97,16 +81,15 @@ def _rows(model: type[BaseModel], paper: dict, laptop: dict, prefix: str = "") -
     rows, lists = [], []
     for name, f in model.model_fields.items():
         key = prefix + name
-        sub = _sub_model(f.annotation)
-        item = _list_item_model(f.annotation)
+        sub = _model_in(f.annotation)
         pv, lv = paper.get(name), laptop.get(name)
-        if sub is not None and isinstance(pv, dict):
+        if sub is not None and isinstance(pv, dict):  # a section: its keys as rows
             r, l2 = _rows(sub, pv, lv if isinstance(lv, dict) else {}, key + ".")
             rows += r
             lists += l2
             continue
-        if item is not None:
-            lists.append((key, item))
+        if sub is not None:  # a list of entries: a table of the entry's keys below
+            lists.append((key, sub))
         doc = (f.description or "").replace("|", "\\|") + _allowed(f.annotation)
         lap = "" if lv == pv else _fmt(lv)
         rows.append(f"| `{key}` | {_fmt(pv)} | {lap} | {doc} |")
@@ -122,7 +105,7 @@ def readme_text() -> str:
     laptop = validate(raw_config(), "config/config.yaml")
     out = [INTRO]
     for name, f in Config.model_fields.items():
-        sub = _sub_model(f.annotation)
+        sub = _model_in(f.annotation)
         if sub is None:
             continue
         out.append(f"\n## `{name}`\n")

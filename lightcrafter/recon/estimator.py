@@ -47,15 +47,10 @@ class EstimatorConfig(Estimator):
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "EstimatorConfig":
-        """Validated; unknown keys or bad values raise ValueError naming the key."""
-        from pydantic import ValidationError
+        """Validated; an unknown key or a bad value is a ConfigError (a ValueError) naming it."""
+        from lightcrafter.config import validate_section
 
-        try:
-            return cls.model_validate(dict(d or {}))
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            key = ".".join(map(str, err["loc"]))
-            raise ValueError(f"recon.estimator.{key}: {err['msg']}; known: {sorted(cls.model_fields)}") from None
+        return validate_section(cls, dict(d or {}), "recon.estimator")
 
 
 def frame_coords(h: int, w: int) -> torch.Tensor:

@@ -14,7 +14,7 @@ import copy
 from typing import Literal, Optional, Union
 
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
-                      ValidationError, model_validator)
+                      model_validator)
 
 # CogVideoX-5B(-I2V) scheduler_config.json, as published with the checkpoint. The diffusers class
 # defaults differ (epsilon, leading, snr_shift 3.0), so the parameterisation is always set from here
@@ -309,13 +309,9 @@ def resolve_config(overrides: dict | None = None) -> dict:
 
     Returns a plain dict of every key. Raises KeyError naming an unknown key at any depth and
     ValueError naming a key whose value has the wrong type or is out of range."""
-    cfg = apply_preset(overrides, "tiny")
-    try:
-        return RefinerSettings.model_validate(cfg).model_dump()
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        key = ".".join(str(x) for x in err["loc"]) or "<refiner>"
-        raise ValueError(f"{key}: {err['msg']}") from None
+    from lightcrafter.config import validate_section
+
+    return validate_section(RefinerSettings, apply_preset(overrides, "tiny"), "refiner").model_dump()
 
 
 def key_docs(model: type[BaseModel] = RefinerSettings, prefix: str = "") -> dict[str, str]:
