@@ -30,6 +30,7 @@ reason; datasets leave it out and count it) or ``error``.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import re
@@ -66,13 +67,15 @@ def clip_stem(ref: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "_", stem).strip("_") or "video"
 
 
-def dl3dv_scenes(root: str | Path) -> list[Path]:
+@functools.lru_cache(maxsize=8)
+def dl3dv_scenes(root: str | Path) -> tuple[Path, ...]:
     """Scene folders of a DL3DV folder: each holds one of :data:`DL3DV_FOLDERS`, at depth 1
     (``root/<scene>/images_4``) or 2 (``root/1K/<scene>/images_4``, DL3DV-10K's batches). Sorted by path
-    under ``root``; reads folder listings only."""
+    under ``root``; reads folder listings only, once per process (the start-up check and the clip plan
+    share it)."""
     root = Path(root)
     if not root.is_dir():
-        return []
+        return ()
 
     def is_scene(d: Path) -> bool:
         return any((d / sub).is_dir() for sub in DL3DV_FOLDERS)
@@ -83,7 +86,7 @@ def dl3dv_scenes(root: str | Path) -> list[Path]:
             found.append(d)
         else:
             found += [e for e in sorted(q for q in d.iterdir() if q.is_dir()) if is_scene(e)]
-    return found
+    return tuple(found)
 
 
 def dl3dv_videos(d: dict, seed: int = 0) -> list[dict]:
@@ -93,7 +96,7 @@ def dl3dv_videos(d: dict, seed: int = 0) -> list[dict]:
     if not d or not d.get("root"):
         return []
     root = Path(d["root"])
-    scenes = dl3dv_scenes(root)[: d.get("max_scenes") or None]
+    scenes = dl3dv_scenes(d["root"])[: d.get("max_scenes") or None]
     rank = sorted(scenes, key=lambda p: hashlib.sha256(f"{seed}:{p.relative_to(root).as_posix()}".encode()).hexdigest())
     test = set(rank[: round(float(d.get("test_fraction", 0.0)) * len(scenes))])
     return [{"path": str(p), "split": "test" if p in test else "train", "clips": int(d.get("clips_per_scene", 1)),

@@ -27,10 +27,6 @@ except ConfigError as exc:
     sys.exit(f"ConfigError: {exc}")
 config.clear()
 config.update(_EFFECTIVE)
-# The paper's effective config (validated, not checked on disk): the report projects its cost.
-PAPER_CONFIG = validate(
-    raw_config([Path(workflow.basedir) / "config" / "paper.yaml"]), "config/paper.yaml"
-)
 
 OUT = config["output_dir"]
 L = Layout(OUT)
@@ -344,6 +340,13 @@ def report_inputs():
         *refiner_outputs(),
         *extra_outputs(),
     ]
+
+
+def paper_config_file(wildcards):
+    """The paper's effective config (validated, not checked on disk), whose cost the report projects:
+    read only when the report job is planned, not at every parse of the workflow."""
+    paper = Path(workflow.basedir) / "config" / "paper.yaml"
+    return params_file(validate(raw_config([paper]), "config/paper.yaml"))
 
 
 def results_root(wildcards, output):

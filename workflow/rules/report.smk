@@ -27,7 +27,7 @@ rule run_report:
                 for k in ("seed", "scenes", "render", "proxy", "real", "recon")
             }
         ),
-        paper=params_file(PAPER_CONFIG),
+        paper=paper_config_file,
     shell:
         "python {params.script} --results {params.results} --logs logs --config-json {params.cfg} "
         "--project {params.paper} > {log} 2>&1"
