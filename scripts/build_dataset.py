@@ -37,13 +37,13 @@ def main() -> int:
     a = ap.parse_args()
     out = Path(a.output)
     layout = Layout(root_of(out, "datasets" if a.variant else "benchmarks").as_posix())
-    plans, real = _cli.json_arg(a.plans_json), _cli.json_arg(a.real_json)
     if a.specs is not None:
         specs = _cli.json_arg(a.specs)
     elif a.variant:
-        specs = datasets.variant_specs(a.variant, layout, plans, real)
+        specs = datasets.variant_specs(a.variant, layout, _cli.json_arg(a.plans_json), _cli.json_arg(a.real_json))
     else:
-        specs = datasets.benchmark_specs(a.benchmark, layout, plans, real, _cli.json_arg(a.mit_json))
+        specs = datasets.benchmark_specs(a.benchmark, layout, _cli.json_arg(a.plans_json),
+                                         _cli.json_arg(a.real_json), _cli.json_arg(a.mit_json))
     records, summary = datasets.build_records(specs, ".", a.variant)
     if not records:
         print(f"build_dataset: {a.variant or a.benchmark}: no pairs (all {len(summary['skipped'])} left out or none "
