@@ -66,12 +66,18 @@ def write_megasam_npz(path, K, c2w_gt, w, h, scale, far=1e2):
              intrinsic=np.asarray(K, np.float32), cam_c2w=np.stack(cam_c2w).astype(np.float32))
 
 
-def encode_dr(b: io.Buffers, c2w, depth_rel=None):
+def encode_dr(b: io.Buffers, c2w, depth_rel=None, stretch=1.0):
     """One frame's pass images as cosmos1 writes them: uint8(((x + 1) / 2) * 255) (truncation),
-    basecolor sRGB-encoded, normals in OpenGL camera axes, scalars replicated to 3 channels."""
+    basecolor sRGB-encoded, normals in OpenGL camera axes, scalars replicated to 3 channels.
+
+    ``stretch``: the image's horizontal over vertical magnification of the video (``sx / sy``). A
+    network shown a stretched frame sees a scene stretched along camera x, whose normals are
+    diag(1/stretch, 1, 1) n (renormalised): that is what it writes."""
     enc = lambda x01: (np.clip(np.asarray(x01, np.float64), 0, 1) * 255.0).astype(np.uint8)  # noqa: E731
     rep = lambda a: np.repeat(np.asarray(a, np.float64)[..., None], 3, axis=-1)  # noqa: E731
     n_cv = np.asarray(b.normal, np.float64) @ np.asarray(c2w)[:3, :3]        # world -> OpenCV camera
+    n_cv = n_cv * np.array([1.0 / stretch, 1.0, 1.0])
+    n_cv = n_cv / np.maximum(np.linalg.norm(n_cv, axis=-1, keepdims=True), 1e-12)   # zero (background) stays zero
     n_gl = n_cv * np.array([1.0, -1.0, -1.0])
     if depth_rel is None:
         d = np.where(np.isfinite(b.depth), b.depth, np.nan)
@@ -278,7 +284,7 @@ def test_dr_resampling_onto_another_grid_follows_resize_and_crop(tmp_path):
     assert (dr_map.width, dr_map.height) == (96, 64)
     b_dr = render(dr_map.scale_K(K0), c2w, 96, 64)
     b_t = render(target.scale_K(K0), c2w, 120, 88)
-    write_dr_frames(tmp_path / "clip", [encode_dr(b_dr, c2w)])
+    write_dr_frames(tmp_path / "clip", [encode_dr(b_dr, c2w, stretch=diffusion_renderer.stretch_ratio(dr_map))])
     paths = diffusion_renderer.find_frames(tmp_path, 1)
     one = {k: v[0] for k, v in paths.items()}
     f = diffusion_renderer.read_frame(one, c2w, src_size=(W0, H0), target=target, resize=(72, 108))
@@ -301,6 +307,34 @@ def test_dr_resampling_onto_another_grid_follows_resize_and_crop(tmp_path):
     # the renderer's crop sees less of the frame than the target grid: those pixels are invalid
     x, _ = dr_map.coords_from(target)
     assert not f.valid[:, x[0] < -0.5].any() and (x[0] < -0.5).any()
+
+
+def test_dr_normals_of_a_3_2_video_stretched_to_16_9_are_corrected(tmp_path):
+    """cosmos1's default stretches a 720x480 video to 1280x704 (here a quarter: 180x120 -> 320x176):
+    normals estimated on that image are corrected back to the video's scene; ignoring the stretch
+    leaves slanted surfaces visibly off."""
+    W0, H0 = 180, 120
+    K0 = intrinsics(W0, H0, 1.0)
+    c2w = gt_cameras(2)[1]
+    dr_map = diffusion_renderer.pixel_map(W0, H0, 320, 176)
+    a = diffusion_renderer.stretch_ratio(dr_map)
+    assert abs(a - (1280 / 720) / (704 / 480)) < 1e-9 and a > 1.2
+    b_dr = render(dr_map.scale_K(K0), c2w, 320, 176)
+    write_dr_frames(tmp_path / "clip", [encode_dr(b_dr, c2w, stretch=a)])
+    one = {k: v[0] for k, v in diffusion_renderer.find_frames(tmp_path, 1).items()}
+    target = PixelMap.resize_crop(W0, H0, W0, H0)
+    b_t = render(K0, c2w, W0, H0)
+    f = diffusion_renderer.read_frame(one, c2w, src_size=(W0, H0), target=target)
+    g = diffusion_renderer.read_frame(one, c2w, src_size=(W0, H0), target=target, unstretch_normals=False)
+    from scipy import ndimage
+
+    m = ndimage.binary_erosion(b_t.mask > 0.5, iterations=3) & f.valid & g.valid
+    slanted = m & (np.abs((b_t.normal @ c2w[:3, :3])[..., 0]) > 0.3)   # surfaces facing sideways in the camera
+    assert slanted.sum() > 200
+    fixed, raw = angle_deg(f.normal, b_t.normal), angle_deg(g.normal, b_t.normal)
+    assert np.median(fixed[m]) < 1.0 and np.median(fixed[slanted]) < 1.5, (np.median(fixed[m]), np.median(fixed[slanted]))
+    print(f"normal error on sideways surfaces: corrected {np.median(fixed[slanted]):.2f} deg, uncorrected {np.median(raw[slanted]):.2f} deg (median)")
+    assert np.median(raw[slanted]) > 3 * np.median(fixed[slanted]) and np.median(raw[slanted]) > 3.0, np.median(raw[slanted])
 
 
 def test_dr_chunks_with_overlap_and_padding_map_to_frames(tmp_path):
@@ -426,7 +460,8 @@ def staged(tmp_path_factory):
     grid = megasam.working_map(W0, H0)                      # 512 x 384 for a 64 x 48 video
     write_megasam_npz(root / "ms.npz", grid.scale_K(K0), gt, grid.width, grid.height, scale=0.5)
     dr = diffusion_renderer.pixel_map(W0, H0, 96, 64)        # the renderer's stretch to 96 x 64
-    write_dr_frames(root / "dr" / "gbuffer_frames" / "clip", [encode_dr(render(dr.scale_K(K0), c, 96, 64), c) for c in gt])
+    write_dr_frames(root / "dr" / "gbuffer_frames" / "clip",
+                    [encode_dr(render(dr.scale_K(K0), c, 96, 64), c, stretch=diffusion_renderer.stretch_ratio(dr)) for c in gt])
     env_w = spot_world_map(32, 64, [(gt[0][:3, :3] @ np.array([0.4, -0.5, 0.77]), 30.0)])
     io.write_rgb_exr(root / "dl.exr", dl_native_map(env_w, gt[0], height=16))
     return {"root": root, "frames": frames, "gt": gt, "grid": grid, "K0": K0, "env_world": env_w}

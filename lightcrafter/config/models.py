@@ -233,6 +233,9 @@ class PaperStack(Section):
                                               "chunks")
     dr_lsb_offset: float = Field(_dr.DEFAULT_LSB_OFFSET, description="offset added to 8-bit codes when decoding DiffusionRenderer's "
                                  "images (half a code: the centre of the quantisation bin)")
+    dr_unstretch_normals: bool = Field(True, description="correct DiffusionRenderer's normals for its stretch of "
+                                       "the frame's aspect (3:2 -> 16:9 by default; lightcrafter.recon.paper_stack."
+                                       "diffusion_renderer.unstretch)")
     basecolor_encoding: Literal["srgb", "linear"] = Field("srgb", description="how DiffusionRenderer's base colour "
                                                           "images are encoded")
     normal_axes: Literal["opengl", "opencv"] = Field("opengl", description="camera axes of DiffusionRenderer's "

@@ -252,6 +252,7 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
                             dr_resize=None, dr_overlap_frames: int = 0,
                             dr_lsb_offset: float = diffusion_renderer.DEFAULT_LSB_OFFSET,
                             basecolor_encoding: str = "srgb", normal_axes: str = "opengl",
+                            dr_unstretch_normals: bool = True,
                             megasam_far_clip: float = megasam.DEFAULT_FAR_CLIP,
                             dl_supersample: int = diffusion_light.DEFAULT_SUPERSAMPLE,
                             envmap_height: int | None = None, cleanup_work: bool = False) -> dict:
@@ -263,7 +264,8 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
     timeouts: seconds per tool ({tool: s}) or one number for all (default 6 h each).
     work_dir: where frames, tool outputs and logs go (default ``out_clip_dir/.work``).
     dr_resize, dr_overlap_frames, dr_lsb_offset, basecolor_encoding, normal_axes: how the
-    DiffusionRenderer run was configured and how to read it (see :mod:`.diffusion_renderer`).
+    DiffusionRenderer run was configured and how to read it (see :mod:`.diffusion_renderer`);
+    dr_unstretch_normals: correct its normals for a stretch of the frame's aspect (default on).
     megasam_far_clip: depths at or beyond are invalid. dl_supersample: ball2envmap.py's --scale.
     envmap_height: height of envmap_init.exr (default: DiffusionLight's).
     Returns the clip manifest. Raises ToolError / io.DataError with one line naming the clip.
@@ -331,7 +333,8 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
     env = adapt("diffusion_light", diffusion_light.load, found["diffusion_light"])
     env_world = diffusion_light.to_world(env, ms.c2w[0], envmap_height, dl_supersample)
 
-    decode_kw = dict(lsb_offset=dr_lsb_offset, basecolor_encoding=basecolor_encoding, normal_axes=normal_axes)
+    decode_kw = dict(lsb_offset=dr_lsb_offset, basecolor_encoding=basecolor_encoding, normal_axes=normal_axes,
+                     unstretch_normals=dr_unstretch_normals)
     settings = {"dr_resize": dr_resize, "dr_overlap_frames": dr_overlap_frames, "megasam_far_clip": megasam_far_clip,
                 "dl_supersample": dl_supersample, "envmap_height": envmap_height, **decode_kw}
     inputs = {"backend": "paper_stack", "frames": inputs_fp, "tools": digests, "settings": settings}

@@ -24,7 +24,10 @@ github.com/nv-tlabs/diffusion-renderer (SVD-based, commit 8fcf005):
   half-pixel) to ``--resize_resolution`` (default: the output size ``--height`` x ``--width``,
   704 x 1280, i.e. a stretch of the whole frame), then ``CenterCrop`` to the output size
   (offset ``round((resized - out) / 2)``). The SVD version stretches the whole frame to a multiple
-  of 64 (``resize_upscale_without_padding``), no crop. :func:`pixel_map` models both.
+  of 64 (``resize_upscale_without_padding``), no crop. :func:`pixel_map` models both. A 3:2 video
+  (720 x 480) stretched to 16:9 (1280 x 704) is magnified 1.21 times more horizontally than
+  vertically; the network then sees a horizontally stretched scene, and its normals are corrected
+  for that (:func:`unstretch`; config ``recon.paper_stack.dr_unstretch_normals``).
 * **Values** (``diffusion_renderer_pipeline.py``): the decoded 3-channel output x in [-1, 1] is
   stored as ``uint8((x + 1).clamp(0, 2) / 2 * 255)`` -- a *truncation*, so the unbiased decode is
   ``x = 2 (v + 0.5) / 255 - 1`` (``lsb_offset=0.5``; use 0 for the SVD version, whose diffusers
@@ -194,6 +197,26 @@ def normals_to_opencv(n: np.ndarray, axes: str = "opengl") -> np.ndarray:
     raise ValueError(f"normal_axes={axes!r}: use 'opengl' or 'opencv'")
 
 
+def stretch_ratio(source: PixelMap) -> float:
+    """Horizontal over vertical magnification of the renderer's image relative to the video
+    (1 = aspect kept; 1280x704 from 720x480, cosmos1's default stretch: 1.212)."""
+    return float(source.sx / source.sy)
+
+
+def unstretch(n_cv: np.ndarray, source: PixelMap) -> np.ndarray:
+    """Camera-space normals (OpenCV axes) estimated on a stretched image -> normals of the video's scene.
+
+    A network shown a frame magnified ``a = sx / sy`` times more horizontally than vertically sees
+    the scene stretched along camera x by ``a`` (X' = a X, same Y and Z); normals transform with the
+    inverse transpose, n' ~ diag(1/a, 1, 1) n, so the video's normals are n ~ diag(a, 1, 1) n'
+    (renormalised by the caller). Identity when the aspect is kept.
+    """
+    a = stretch_ratio(source)
+    if abs(a - 1.0) < 1e-9:
+        return n_cv
+    return n_cv * np.array([a, 1.0, 1.0])
+
+
 @dataclass
 class GBufferFrame:
     """One frame in our conventions (module docstring): albedo (H, W, 3) linear, roughness and
@@ -211,12 +234,13 @@ class GBufferFrame:
 def decode_frame(images: dict[str, np.ndarray], c2w: np.ndarray, *, source: PixelMap | None = None,
                  target: PixelMap | None = None, lsb_offset: float = DEFAULT_LSB_OFFSET,
                  basecolor_encoding: str = "srgb", normal_axes: str = "opengl",
-                 min_normal_length: float = MIN_NORMAL_LENGTH) -> GBufferFrame:
+                 min_normal_length: float = MIN_NORMAL_LENGTH, unstretch_normals: bool = True) -> GBufferFrame:
     """Decode one frame's uint8 pass images (dict pass -> (H, W, 3)) to our conventions.
 
     ``c2w`` (4, 4): the frame's OpenCV camera-to-world (from MegaSAM, our world). With ``source``
     (the renderer image's :class:`PixelMap`) and ``target`` (the clip grid's, e.g. MegaSAM's), the
-    passes are resampled bilinearly onto the target grid (normals renormalised after sampling).
+    passes are resampled bilinearly onto the target grid (normals renormalised after sampling) and,
+    with ``unstretch_normals``, corrected for the renderer's anisotropic stretch (:func:`unstretch`).
     """
     if basecolor_encoding not in ("srgb", "linear"):
         raise ValueError(f"basecolor_encoding={basecolor_encoding!r}: use 'srgb' or 'linear'")
@@ -232,6 +256,8 @@ def decode_frame(images: dict[str, np.ndarray], c2w: np.ndarray, *, source: Pixe
     base01 = np.clip((stack[..., 0:3] + 1.0) / 2.0, 0.0, 1.0)
     albedo = display_to_linear(base01) if basecolor_encoding == "srgb" else base01.astype(np.float32)
     n = normals_to_opencv(stack[..., 3:6], normal_axes)
+    if source is not None and unstretch_normals:
+        n = unstretch(n, source)
     length = np.linalg.norm(n, axis=-1)
     valid = inside & (length >= min_normal_length)
     n_cam = n / np.maximum(length, 1e-12)[..., None]
