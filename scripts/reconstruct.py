@@ -63,22 +63,31 @@ def main() -> int:
             from lightcrafter.recon.resample import onto_video_grid
 
             _, u8 = read_video_frames(frames)
-            png = out / ".work" / "frames"
-            png.mkdir(parents=True, exist_ok=True)
+            # The tools' frames are written by the backend under .work/frames (frames_root holds this
+            # clip only); the display frames handed to it go to .work/input, apart, so that a retry
+            # never shows the tools a second clip.
+            png = out / ".work" / "input"
+            shutil.rmtree(png, ignore_errors=True)
+            png.mkdir(parents=True)
             import imageio.v3 as iio
 
             for i, f in enumerate(u8):
                 iio.imwrite(png / f"{i:05d}.png", f)
+            cleanup = bool(settings.pop("cleanup_work", True))
             reconstruct_paper_stack(png, out / "tool_grid", settings.pop("commands", {}), scene_static=bool(a.scene_static),
-                                    fps=a.fps, clip_id=name, work_dir=out / ".work", **settings)
-            m = onto_video_grid(out / "tool_grid", out, u8.shape[2], u8.shape[1])
+                                    fps=a.fps, clip_id=name, work_dir=out / ".work", cleanup_work=False, **settings)
             if (out / "tool_grid" / "envmap_init.exr").is_file():
                 shutil.copyfile(out / "tool_grid" / "envmap_init.exr", out / "envmap_init.exr")
+            m = onto_video_grid(out / "tool_grid", out, u8.shape[2], u8.shape[1])
+            if cleanup:  # the clip is written: the tools' frames, outputs and the tool-grid copy go
+                for d in (".work", "tool_grid"):
+                    shutil.rmtree(out / d, ignore_errors=True)
     except (ReconstructionError, ToolError) as exc:  # the video, or a paper-stack tool on it, failed
         if not a.skip_failed:
             print(f"reconstruct: {exc}", file=sys.stderr)
             return 1
         shutil.rmtree(out / "buffers", ignore_errors=True)
+        _drop_tool_work(out)
         write_skipped(out, str(exc), {"clip_id": name})
         print(f"reconstruct: {name}: left out: {exc}")
         return 0
@@ -89,6 +98,18 @@ def main() -> int:
     print(f"reconstruct: {name}: {m['num_frames']} frames, {m['buffer_frames']} buffer frame(s), "
           f"cameras {phi.get('method')} ({phi.get('registered')}/{phi.get('frames')} registered) -> {out}")
     return 0
+
+
+def _drop_tool_work(out: Path) -> None:
+    """A skipped paper-stack clip keeps only its tools' logs (out/tool_logs/), not their outputs."""
+    work = out / ".work"
+    if work.is_dir():
+        logs = out / "tool_logs"
+        logs.mkdir(exist_ok=True)
+        for log in work.glob("*.log"):
+            shutil.copyfile(log, logs / log.name)
+    for d in (".work", "tool_grid"):
+        shutil.rmtree(out / d, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -556,3 +556,74 @@ def test_runner_rejects_a_megasam_grid_that_is_not_the_released_one(staged, tmp_
     with pytest.raises(io.DataError) as e:
         backend.reconstruct_paper_stack(staged["frames"], tmp_path / "clip_c", cmds, fps=12, scene_static=True)
     assert one_line(e).startswith("clip_c: megasam: ") and "working grid" in str(e.value)
+
+
+# ----------------------------------------------------------------------------- the script, with format stand-ins
+STANDIN = Path(__file__).resolve().parent / "standin_tools.py"
+
+
+def standin_commands() -> dict:
+    py = f"{sys.executable} {STANDIN}"
+    return {"megasam": f"{py} megasam {{frames}} {{out}} {{clip}}",
+            "diffusion_renderer": f"{py} diffusion_renderer {{frames_root}} {{out}}",
+            "diffusion_light": f"{py} diffusion_light {{frame0_dir}} {{out}}"}
+
+
+def run_reconstruct(frames, out, settings, *extra, env=None):
+    import os
+    import subprocess
+
+    repo = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, str(repo / "scripts" / "reconstruct.py"), "--frames", str(frames), "--out", str(out),
+           "--backend", "paper_stack", "--name", out.name, "--fps", "12", "--settings-json", json.dumps(settings), *extra]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=dict(os.environ, **(env or {})))
+
+
+def write_video(folder, n, w=96, h=64):
+    rng = np.random.default_rng(1)
+    for i in range(n):
+        io.write_rgb_exr(Path(folder) / f"{i:04d}.exr", rng.uniform(0.05, 0.8, (h, w, 3)).astype(np.float32))
+
+
+def test_script_retry_after_a_hung_tool_sees_one_clip_keeps_the_aspect_and_cleans_up(tmp_path):
+    """A 3:2 video through scripts/reconstruct.py with the tools' format stand-ins: the first attempt's
+    DiffusionRenderer hangs and is stopped by its timeout (leftovers stay, the job fails); the retry
+    hands the tools a frames folder holding this clip only (the stand-in exits non-zero otherwise, as
+    --group_mode folder would render a second clip), writes the clip on the video's full 96x64 grid (the
+    strip MegaSAM's crop to multiples of 8 removed is filled, not a hole) and removes the tools' work."""
+    write_video(tmp_path / "video", 5)
+    out = tmp_path / "s0_t0"
+    marker = tmp_path / "hung-once"
+    settings = {"commands": standin_commands(), "timeouts": {"diffusion_renderer": 4.0}}
+    p = run_reconstruct(tmp_path / "video", out, settings, env={"STANDIN_HANG_ONCE": f"diffusion_renderer:{marker}"})
+    assert p.returncode == 1 and "diffusion_renderer command timed out after 4 s" in p.stderr, p.stderr[-2000:]
+    assert marker.is_file() and (out / ".work" / "frames").is_dir() and not (out / "buffers.json").exists()
+    p = run_reconstruct(tmp_path / "video", out, settings, env={"STANDIN_HANG_ONCE": f"diffusion_renderer:{marker}"})
+    assert p.returncode == 0, p.stderr[-3000:]
+    views, info = clipmod.read_clip(out)
+    assert (info.width, info.height, info.num_frames) == (96, 64, 5) and info.units == "arbitrary"
+    grid = megasam.working_map(96, 64)
+    assert (grid.width, grid.height) == (536, 360)          # the crop drops the last 0.9% columns
+    for v in views:
+        assert v.buffers.mask[:, -2:].all() and v.buffers.mask[-2:].all()
+    assert not (out / ".work").exists() and not (out / "tool_grid").exists()
+
+
+def test_one_frame_clip_takes_the_static_camera_path(tmp_path):
+    """MegaSAM's tracker cannot start on one frame: the megasam command's UniDepth npz (depth, fov on
+    a long side of 640) gives a level static camera with K from the fov, metric units."""
+    write_video(tmp_path / "image", 1, w=120, h=80)
+    out = tmp_path / "mit_scene_d0"
+    p = run_reconstruct(tmp_path / "image", out, {"commands": standin_commands()})
+    assert p.returncode == 0, p.stderr[-3000:]
+    views, info = clipmod.read_clip(out)
+    assert info.num_frames == 1 and info.camera_static and info.units == "metres"
+    assert (info.width, info.height) == (120, 80)
+    np.testing.assert_allclose(views[0].K[0, 0], (120 / 2) / np.tan(np.radians(30)), rtol=1e-6)   # fov 60 deg
+    np.testing.assert_allclose(views[0].c2w[:3, :3], megasam.WORLD_FROM_CAM0[:3, :3], atol=1e-12)
+    assert views[0].buffers.mask.mean() > 0.99
+    # a MegaSAM final npz where UniDepth's was expected is a one-line error naming the file
+    cmds = dict(standin_commands(), megasam="mkdir -p {out} && " + sys.executable + " -c \"import numpy as np, sys; "
+                "np.savez(sys.argv[1], images=np.zeros((1, 2, 2, 3), np.uint8))\" {out}/x_sgd_cvd_hr.npz")
+    p = run_reconstruct(tmp_path / "image", tmp_path / "mit_bad", {"commands": cmds})
+    assert p.returncode == 1 and "lacks key(s) ['depth', 'fov']" in p.stderr and "x_sgd_cvd_hr.npz" in p.stderr, p.stderr[-2000:]

@@ -28,7 +28,9 @@ placeholders are replaced by shell-quoted values (write literal braces as ``{{``
 What each command must leave under ``{out}`` (searched recursively):
 
 * megasam: one ``*.npz`` in MegaSAM's final format (``cvd_opt.py``'s ``{scene}_sgd_cvd_hr.npz``;
-  if several npz files are left, the only ``*_sgd_cvd_hr.npz``), see :mod:`.megasam`;
+  if several npz files are left, the only ``*_sgd_cvd_hr.npz``), see :mod:`.megasam`; for a
+  one-frame clip (``{num_frames}`` = 1: MegaSAM's tracker cannot start) the one ``{frame}.npz`` of
+  MegaSAM's UniDepth stage (the static-camera path, see :mod:`.megasam`);
 * diffusion_renderer: ``{chunk:04d}.{index:04d}.{pass}.jpg|png`` of every pass for every frame,
   in one folder (run it with ``--chunk_mode all`` for videos longer than one chunk), see
   :mod:`.diffusion_renderer`;
@@ -80,7 +82,7 @@ PLACEHOLDERS = ("frames", "frames_root", "frame0", "frame0_dir", "out", "work", 
 DEFAULT_TIMEOUT_S = 6 * 3600.0
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 EXPECTED = {
-    "megasam": "*.npz (MegaSAM's *_sgd_cvd_hr.npz)",
+    "megasam": "*.npz (MegaSAM's *_sgd_cvd_hr.npz, or UniDepth's {frame}.npz for a one-frame clip)",
     "diffusion_renderer": "{chunk}.{index}.{pass}.jpg|png G-buffer images",
     "diffusion_light": "*.exr (exposure2hdr.py's map)",
 }
@@ -285,6 +287,7 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
         raise ValueError(f"{source}: a folder of frames needs fps; give the clip's frame rate")
     T = len(frames)
     H0, W0 = frames[0].shape[:2]
+    static = T == 1      # MegaSAM's tracker needs a warm-up of moving frames: the static-camera path
 
     frames_root, first_dir = work / "frames", work / "first"
     frames_dir, frame0 = frames_root / clip_id, first_dir / f"{clip_id}.png"
@@ -306,7 +309,7 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
     base = {"frames": frames_dir, "frames_root": frames_root, "frame0": frame0, "frame0_dir": first_dir,
             "work": work, "clip": clip_id, "fps": f"{fps:g}", "num_frames": T, "width": W0, "height": H0}
     finders = {
-        "megasam": megasam.find_output,
+        "megasam": megasam.find_unidepth if static else megasam.find_output,
         "diffusion_renderer": lambda d: diffusion_renderer.find_frames(d, T, dr_overlap_frames) or None,
         "diffusion_light": diffusion_light.find_output,
     }
@@ -323,10 +326,14 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
         except io.DataError as exc:
             raise io.DataError(f"{clip_id}: {tool}: {exc}") from exc
 
-    ms = adapt("megasam", megasam.load, found["megasam"], far_clip=megasam_far_clip)
+    if static:
+        ms = adapt("megasam", megasam.load_unidepth, found["megasam"], frames[0])
+        grid = megasam.unidepth_map(W0, H0)
+    else:
+        ms = adapt("megasam", megasam.load, found["megasam"], far_clip=megasam_far_clip)
+        grid = megasam.working_map(W0, H0)
     if ms.num_frames != T:
         raise io.DataError(f"{clip_id}: megasam: {ms.path} has {ms.num_frames} frames but the video has {T}; rerun MegaSAM on {frames_dir}")
-    grid = megasam.working_map(W0, H0)
     if (grid.height, grid.width) != (ms.height, ms.width):
         raise io.DataError(f"{clip_id}: megasam: {ms.path} is {ms.width}x{ms.height} but MegaSAM's working grid of a "
                            f"{W0}x{H0} video is {grid.width}x{grid.height}; run the released test_demo.py/cvd_opt.py")
@@ -384,6 +391,9 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
         "source_frames": source_rel,
         "source_encoding": "8-bit sRGB display frames on the clip grid (MegaSAM's images)",
         "envmap_init": "envmap_init.exr",
+        "source_map": {"sx": grid.sx, "ox": grid.ox, "sy": grid.sy, "oy": grid.oy,
+                       "note": "x_clip = sx x_source + ox (pixel centres at integers); the clip grid is "
+                               + ("UniDepth's (one frame, static camera)" if static else "MegaSAM's working grid")},
         "world_frame": "X = x, Y = z, Z = -y of MegaSAM's first (OpenCV) camera: Z up if that camera is level",
         "diagnostics": {
             "megasam_far_fraction": round(ms.far_fraction, 4),
@@ -392,7 +402,8 @@ def reconstruct_paper_stack(source: str | os.PathLike, out_clip_dir: str | os.Pa
         },
     }
     manifest = clipmod.write_clip(out, serve=list(range(T)), K=ms.K, c2w=ms.c2w, width=ms.width, height=ms.height,
-                                  fps=fps, camera_static=camera_static, scene_static=scene_static, units="arbitrary",
+                                  fps=fps, camera_static=camera_static or static, scene_static=scene_static,
+                                  units="metres" if static else "arbitrary",
                                   producer=producer, content_id=content_id, extra=extra)
     # Run times vary between runs: kept out of the manifest (consumers fingerprint it), beside it.
     io.write_json(out / "timing.json", {"tool_seconds": {t: (round(v, 3) if v is not None else None) for t, v in seconds.items()},

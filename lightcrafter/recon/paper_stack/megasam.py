@@ -49,6 +49,17 @@ Our conventions (output)
 * **Cameras**: OpenCV axes (unchanged, MegaSAM's are OpenCV), ``c2w[t] = W @ inv(C0) @ C_t``.
 * **Units**: "arbitrary": depth and camera translations share MegaSAM's per-video scale.
 * **Depth**: z-depth (float32), +inf where invalid (at or beyond ``far_clip``).
+
+One-frame clips (the static-camera path)
+----------------------------------------
+MegaSAM's tracker needs ``--warmup 8`` keyframes with motion: a one-frame clip (MIT's images) cannot
+be tracked. For those the megasam command runs only MegaSAM's metric-depth stage,
+``UniDepth/scripts/demo_mega-sam.py``, which writes ``{outdir}/{scene}/{frame}.npz`` with ``depth``
+(H, W) float32 metric z-depth and ``fov`` (degrees, horizontal: ``2 atan(W / 2 fx)``) for the frame
+resized (OpenCV INTER_AREA, aspect kept) to a long side of 640 px (:func:`unidepth_map`);
+:func:`load_unidepth` reads it. The camera is level at the origin looking along +Y (c2w =
+WORLD_FROM_CAM0), K from ``fov`` with the principal point at the image centre; units "metres"
+(UniDepth's metric estimate).
 """
 
 from __future__ import annotations
@@ -207,6 +218,61 @@ def load(path: str | os.PathLike, far_clip: float = DEFAULT_FAR_CLIP) -> MegaSam
     Ks = np.repeat(K.astype(np.float64)[None], t, axis=0)
     return MegaSamResult(rgb=images, depth=d, valid=valid, K=Ks, c2w=to_world(c2w),
                          c2w_native=c2w.astype(np.float64), far_fraction=float(far.mean()), path=path)
+
+
+# ----------------------------------------------------------------------------- one-frame clips
+UNIDEPTH_LONG_SIDE = 640     # demo_mega-sam.py's LONG_DIM
+UNIDEPTH_KEYS = ("depth", "fov")
+
+
+def unidepth_map(width: int, height: int) -> PixelMap:
+    """The :class:`PixelMap` from a ``width`` x ``height`` frame to UniDepth's npz (long side 640)."""
+    if width > height:
+        w, h = UNIDEPTH_LONG_SIDE, int(round(UNIDEPTH_LONG_SIDE * height / width))
+    else:
+        w, h = int(round(UNIDEPTH_LONG_SIDE * width / height)), UNIDEPTH_LONG_SIDE
+    return PixelMap.resize_crop(width, height, w, h)
+
+
+def load_unidepth(path: str | os.PathLike, frame: np.ndarray) -> MegaSamResult:
+    """One frame's UniDepth npz (module docstring) and the frame itself (uint8 RGB, source size) ->
+    a one-frame :class:`MegaSamResult` on UniDepth's grid: level camera, K from the npz's fov."""
+    import cv2
+
+    from lightcrafter.camera import intrinsics
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in UNIDEPTH_KEYS if k not in z.files]
+            if missing:
+                raise DataError(f"{path}: UniDepth npz lacks key(s) {missing} (has {sorted(z.files)}); a one-frame clip's "
+                                f"megasam command must run UniDepth/scripts/demo_mega-sam.py only")
+            depth, fov = np.asarray(z["depth"], np.float32), float(np.asarray(z["fov"]).reshape(-1)[0])
+    except DataError:
+        raise
+    except Exception as exc:
+        raise DataError(f"{path}: unreadable npz ({type(exc).__name__}: {exc}); rerun UniDepth") from exc
+    H0, W0 = frame.shape[:2]
+    grid = unidepth_map(W0, H0)
+    if depth.shape != (grid.height, grid.width):
+        raise DataError(f"{path}: depth is {depth.shape[1]}x{depth.shape[0]} but UniDepth's grid of a {W0}x{H0} frame is "
+                        f"{grid.width}x{grid.height}; run the released demo_mega-sam.py on the clip's frame")
+    if not (0.0 < fov < 180.0):
+        raise DataError(f"{path}: fov {fov} is not a field of view in degrees; rerun UniDepth")
+    valid = np.isfinite(depth) & (depth > 0)
+    rgb = cv2.resize(np.ascontiguousarray(frame), (grid.width, grid.height), interpolation=cv2.INTER_AREA)
+    K = intrinsics(grid.width, grid.height, math.radians(fov))
+    return MegaSamResult(rgb=rgb[None], depth=np.where(valid, depth, np.inf)[None].astype(np.float32), valid=valid[None],
+                         K=K[None], c2w=WORLD_FROM_CAM0[None].copy(), c2w_native=np.eye(4)[None], far_fraction=0.0, path=path)
+
+
+def find_unidepth(out_dir: str | os.PathLike) -> Path | None:
+    """The one UniDepth npz a one-frame clip's megasam run left under ``out_dir`` (None: none)."""
+    found = sorted(p for p in Path(out_dir).rglob("*.npz") if p.is_file())
+    if len(found) > 1:
+        raise DataError(f"{out_dir}: {len(found)} npz files for a one-frame clip; leave exactly UniDepth's {{frame}}.npz there")
+    return found[0] if found else None
 
 
 def find_output(out_dir: str | os.PathLike) -> Path | None:
