@@ -627,3 +627,116 @@ def test_one_frame_clip_takes_the_static_camera_path(tmp_path):
                 "np.savez(sys.argv[1], images=np.zeros((1, 2, 2, 3), np.uint8))\" {out}/x_sgd_cvd_hr.npz")
     p = run_reconstruct(tmp_path / "image", tmp_path / "mit_bad", {"commands": cmds})
     assert p.returncode == 1 and "lacks key(s) ['depth', 'fov']" in p.stderr and "x_sgd_cvd_hr.npz" in p.stderr, p.stderr[-2000:]
+
+
+# ----------------------------------------------------------------------------- the shipped site scripts
+FAKE_CHECKOUT_SCRIPTS = {
+    # path in the tool's checkout -> a stand-in that parses the released script's flags and writes what
+    # the released script writes, where it writes it (relative to the checkout, as they do)
+    ("megasam", "UniDepth/scripts/demo_mega-sam.py"): '''
+import argparse, os, sys, numpy as np
+sys.path.insert(0, os.environ["STANDIN_DIR"]); import standin_tools as s
+from lightcrafter.recon.paper_stack import megasam as ms
+ap = argparse.ArgumentParser(); ap.add_argument("--scene-name"); ap.add_argument("--img-path"); ap.add_argument("--outdir")
+a = ap.parse_args()
+frames = s._frames(__import__("pathlib").Path(a.img_path)); h0, w0 = frames[0].shape[:2]; g = ms.unidepth_map(w0, h0)
+os.makedirs(f"{a.outdir}/{a.scene_name}", exist_ok=True)
+for i in range(len(frames)):
+    np.savez(f"{a.outdir}/{a.scene_name}/{i:05d}.npz", depth=s._ramp(g.height, g.width), fov=np.float64(60.0))
+''',
+    ("megasam", "Depth-Anything/run_videos.py"): '''
+import argparse, os, numpy as np
+ap = argparse.ArgumentParser(); [ap.add_argument(f) for f in ("--encoder", "--load-from", "--img-path", "--outdir")]
+a = ap.parse_args(); os.makedirs(a.outdir, exist_ok=True); np.save(f"{a.outdir}/00000.npy", np.zeros((4, 4), np.float32))
+''',
+    ("megasam", "camera_tracking_scripts/test_demo.py"): '''
+import argparse, os
+ap = argparse.ArgumentParser()
+for f in ("--datapath", "--weights", "--scene_name", "--mono_depth_path", "--metric_depth_path"): ap.add_argument(f)
+ap.add_argument("--disable_vis", action="store_true"); a = ap.parse_args()
+assert a.disable_vis and not a.metric_depth_path.endswith(" ")
+os.makedirs(f"reconstructions/{a.scene_name}", exist_ok=True); os.makedirs("outputs", exist_ok=True)
+open(f"reconstructions/{a.scene_name}/datapath.txt", "w").write(a.datapath); open(f"outputs/{a.scene_name}_droid.npz", "wb").write(b"x")
+''',
+    ("megasam", "cvd_opt/preprocess_flow.py"): '''
+import argparse, os
+ap = argparse.ArgumentParser(); [ap.add_argument(f) for f in ("--datapath", "--model", "--scene_name")]
+ap.add_argument("--mixed_precision", action="store_true"); a = ap.parse_args()
+os.makedirs(f"cache_flow/{a.scene_name}", exist_ok=True); open(f"cache_flow/{a.scene_name}/flows.npy", "wb").write(b"x")
+''',
+    ("megasam", "cvd_opt/cvd_opt.py"): '''
+import argparse, os, shutil, sys, tempfile
+sys.path.insert(0, os.environ["STANDIN_DIR"]); import standin_tools as s
+ap = argparse.ArgumentParser(); [ap.add_argument(f) for f in ("--scene_name", "--w_grad", "--w_normal")]; a = ap.parse_args()
+frames = open(f"reconstructions/{a.scene_name}/datapath.txt").read()
+t = tempfile.mkdtemp(); s.megasam(frames, t, a.scene_name); os.makedirs("outputs_cvd", exist_ok=True)
+shutil.move(f"{t}/outputs_cvd/{a.scene_name}_sgd_cvd_hr.npz", f"outputs_cvd/{a.scene_name}_sgd_cvd_hr.npz")
+''',
+    ("diffusion_renderer", "cosmos_predict1/diffusion/inference/inference_inverse_renderer.py"): '''
+import argparse, os, sys
+sys.path.insert(0, os.environ["STANDIN_DIR"]); import standin_tools as s
+ap = argparse.ArgumentParser()
+for f in ("--checkpoint_dir", "--diffusion_transformer_dir", "--dataset_path", "--num_video_frames", "--group_mode",
+          "--chunk_mode", "--save_video", "--video_save_folder"): ap.add_argument(f)
+a = ap.parse_args(); assert a.chunk_mode == "all" and a.group_mode == "folder"
+s.diffusion_renderer(a.dataset_path, a.video_save_folder)
+''',
+    ("diffusion_light", "inpaint.py"): '''
+import argparse, os, shutil
+ap = argparse.ArgumentParser(); ap.add_argument("--dataset"); ap.add_argument("--output_dir"); a = ap.parse_args()
+os.makedirs(f"{a.output_dir}/square", exist_ok=True)
+for f in os.listdir(a.dataset): shutil.copy(f"{a.dataset}/{f}", f"{a.output_dir}/square/{f[:-4]}_ev-00.png")
+''',
+    ("diffusion_light", "ball2envmap.py"): '''
+import argparse, os, shutil
+ap = argparse.ArgumentParser(); ap.add_argument("--ball_dir"); ap.add_argument("--envmap_dir"); a = ap.parse_args()
+shutil.copytree(a.ball_dir, a.envmap_dir)
+''',
+    ("diffusion_light", "exposure2hdr.py"): '''
+import argparse, os, sys, tempfile
+sys.path.insert(0, os.environ["STANDIN_DIR"]); import standin_tools as s
+ap = argparse.ArgumentParser(); ap.add_argument("--input_dir"); ap.add_argument("--output_dir"); a = ap.parse_args()
+for f in os.listdir(a.input_dir):
+    t = tempfile.mkdtemp(); open(f"{t}/{f.replace('_ev-00', '')}", "wb").write(b"")
+    s.diffusion_light(t, os.path.dirname(a.output_dir))
+''',
+}
+
+
+def fake_checkouts(root: Path) -> dict:
+    env = {"STANDIN_DIR": str(STANDIN.parent), "PYTHONPATH": str(STANDIN.parents[1]),
+           "PATH": f"{Path(sys.executable).parent}:{__import__('os').environ['PATH']}"}
+    for (tool, rel), code in FAKE_CHECKOUT_SCRIPTS.items():
+        p = root / tool / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(code.lstrip())
+    for tool, var in (("megasam", "MEGASAM_ROOT"), ("diffusion_renderer", "DIFFUSION_RENDERER_ROOT"),
+                      ("diffusion_light", "DIFFUSION_LIGHT_ROOT")):
+        env[var] = str(root / tool)
+    return env
+
+
+@pytest.mark.parametrize("n_frames", [3, 1])
+def test_shipped_site_scripts_run_the_released_commands_and_leave_nothing_in_the_checkouts(tmp_path, n_frames, monkeypatch):
+    """config/paper.yaml's commands (config/site/*.sh, taken from the tools' READMEs) against checkouts
+    whose scripts are format stand-ins accepting the released flags: the clip is assembled, and each
+    checkout holds only its own files afterwards (MegaSAM's cwd-relative intermediates are removed)."""
+    import os
+    import yaml
+
+    repo = STANDIN.parents[1]
+    commands = yaml.safe_load((repo / "config" / "paper.yaml").read_text())["recon"]["paper_stack"]["commands"]
+    commands = {t: c.replace("config/site/", f"{repo}/config/site/") for t, c in commands.items()}
+    for k, v in fake_checkouts(tmp_path / "checkouts").items():
+        monkeypatch.setenv(k, v)
+    before = {p for p in (tmp_path / "checkouts").rglob("*") if p.is_file()}
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    import imageio.v3 as iio
+
+    for i in range(n_frames):
+        iio.imwrite(frames / f"{i:05d}.png", np.full((48, 72, 3), 40 * i + 30, np.uint8))
+    man = backend.reconstruct_paper_stack(frames, tmp_path / "clip", commands, fps=12, scene_static=True, clip_id="c0")
+    assert man["num_frames"] == n_frames and man["camera_static"] == (n_frames == 1)
+    after = {p for p in (tmp_path / "checkouts").rglob("*") if p.is_file() and "__pycache__" not in p.parts}
+    assert after == before, sorted(str(p.relative_to(tmp_path)) for p in after - before)
