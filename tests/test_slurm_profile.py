@@ -147,17 +147,56 @@ def test_a_retry_gets_the_longer_runtime(tmp_path):
     assert got == eval(expr, {"attempt": 2}) and got > eval(expr, {"attempt": 1}), (expr, got)
 
 
-def test_dry_run_with_the_profile_assigns_partitions_and_gpus():
-    """Snakemake's view of each job under the profile (ci config): partition, GPU, threads."""
+BLENDER_RULES = ("render_buffers", "render_rgb", "longform_buffers", "longform_rgb")
+
+
+def dry_run_jobs(*extra, target="results/eval/clean_buffers/synthetic/metrics.json") -> tuple[str, dict[str, list[str]]]:
+    """Dry run of the ci config under the profile: (stdout, {rule: [job body, ...]})."""
     import tempfile
 
     res = subprocess.run(
         [sys.executable, "-m", "snakemake", "-n", "--workflow-profile", str(PROFILE.parent),
-         "--configfile", str(REPO / "config" / "ci.yaml"), "-d", tempfile.mkdtemp(prefix="dag-"),
-         "results/eval/clean_buffers/synthetic/metrics.json"],
+         "--configfile", str(REPO / "config" / "ci.yaml"), "-d", tempfile.mkdtemp(prefix="dag-"), target, *extra],
         cwd=REPO, capture_output=True, text=True, timeout=300, env=venv_env(),
     )
     assert res.returncode == 0, res.stderr[-3000:]
+    jobs: dict[str, list[str]] = {}
+    lines = res.stdout.splitlines()
+    for i, line in enumerate(lines):
+        m = re.match(r"^(\s*)rule (\w+):$", line)
+        if m:
+            body = []
+            for nxt in lines[i + 1:]:
+                if len(nxt) - len(nxt.lstrip()) <= len(m.group(1)):
+                    break
+                body.append(nxt)
+            jobs.setdefault(m.group(2), []).append("\n".join(body))
+    return res.stdout, jobs
+
+
+def job_resources(body: str) -> dict[str, str]:
+    return dict(re.findall(r"(\w+)=([^,\n]+)", re.search(r"resources: (.*)", body).group(1)))
+
+
+def test_a_gpu_render_device_sends_blender_rules_to_the_gpu_partition():
+    """render.device: optix (or cuda) puts every Blender job on the gpu partition with one GPU; the
+    Mitsuba and CPU rules stay on the cpu partition without one."""
+    _, jobs = dry_run_jobs("--config", "render={device: optix}")
+    gpu_rules = {r for r, v in profile()["set-resources"].items() if v.get("gpu")}
+    for rule, bodies in jobs.items():
+        for body in bodies:
+            res = job_resources(body)
+            if rule in BLENDER_RULES:
+                assert res["slurm_partition"] == "gpu" and res.get("gpu") == "1", (rule, res)
+            elif rule not in gpu_rules:
+                assert res["slurm_partition"] == "cpu" and "gpu" not in res, (rule, res)
+    assert {"render_buffers", "render_rgb"} <= set(jobs)
+
+
+def test_dry_run_with_the_profile_assigns_partitions_and_gpus():
+    """Snakemake's view of each job under the profile (ci config): partition, GPU, threads."""
+    stdout, _ = dry_run_jobs()
+    res = type("R", (), {"stdout": stdout})
     prof = profile()
     seen = set()
     lines = res.stdout.splitlines()
@@ -174,7 +213,7 @@ def test_dry_run_with_the_profile_assigns_partitions_and_gpus():
         body = "\n".join(body)
         resources = dict(re.findall(r"(\w+)=([^,\n]+)", re.search(r"resources: (.*)", body).group(1)))
         want = prof["set-resources"][rule]
-        assert resources["slurm_partition"] == want["slurm_partition"], rule
+        assert resources["slurm_partition"] == want.get("slurm_partition", prof["default-resources"]["slurm_partition"]), rule
         assert resources.get("gpu") == (str(want["gpu"]) if "gpu" in want else None), rule
         assert int(resources["mem_mb"]) == want["mem_mb"], rule
         threads = re.search(r"threads: (\d+)", body)

@@ -58,6 +58,18 @@ BENCHMARKS = (
     + (["mit"] if MIT["pairs"] else [])
 )
 
+GPU_RENDER_DEVICES = ("cuda", "optix")
+
+
+def blender_resources():
+    """Extra resources of the Blender (Cycles) rules: one GPU on the gpu partition when render.device
+    asks for one (cuda, optix); none for cpu and auto (auto on a CPU node renders on the CPU). The SLURM
+    profile leaves these rules' partition to this (profiles/slurm/config.yaml)."""
+    if config["render"]["device"] in GPU_RENDER_DEVICES:
+        return {"slurm_partition": "gpu", "gpu": 1}
+    return {}
+
+
 PARAMS_DIR = Path(".snakemake") / "lightcrafter-params"
 _PARAMS_WRITTEN = {}
 

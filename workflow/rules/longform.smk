@@ -43,6 +43,7 @@ rule longform_buffers:
     resources:
         mem_mb=3000,
         runtime=60,
+        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=parent_dir,
@@ -68,6 +69,7 @@ rule longform_rgb:
     resources:
         mem_mb=3000,
         runtime=120,
+        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,

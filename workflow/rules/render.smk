@@ -18,6 +18,7 @@ rule render_buffers:
     resources:
         mem_mb=3000,
         runtime=60,
+        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,
@@ -48,6 +49,7 @@ rule render_rgb:
     resources:
         mem_mb=3000,
         runtime=120,
+        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,
