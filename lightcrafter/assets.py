@@ -320,19 +320,15 @@ def curate_asset(path: str | Path, settings: CurationSettings):
     return out, record
 
 
-def curate_folder(src_dir: str | Path, out_dir: str | Path, manifest_path: str | Path,
-                  settings: CurationSettings, logger=print) -> dict:
-    """Curate every ``*.glb`` under ``src_dir`` (at any depth) into ``out_dir`` and write the manifest (JSON).
-
-    Manifest: ``{"settings": ..., "accepted": [{id, path, sha256, ...record}], "rejected":
-    [{id, source, reason}]}``, sorted by id so equal inputs give identical manifests.
-    """
+def list_glbs(src_dir: str | Path) -> list[Path]:
+    """Every ``*.glb`` under ``src_dir`` at any depth (Objaverse: ``glbs/000-xxx/<uid>.glb``), sorted by
+    relative path; hidden files (a writer's temporaries) are left out. Asset ids are file stems: two
+    files of one name are an error, as is a folder without any GLB."""
     from .io import DataError
 
-    src_dir, out_dir = Path(src_dir), Path(out_dir)
+    src_dir = Path(src_dir)
     if not src_dir.is_dir():
         raise DataError(f"{src_dir}: asset folder not found; set assets.dir to a folder of .glb files")
-    # At any depth (Objaverse stores glbs/000-xxx/<uid>.glb); hidden files are a writer's temporaries.
     files = sorted((f for f in src_dir.rglob("*.glb")
                     if not any(part.startswith(".") for part in f.relative_to(src_dir).parts)),
                    key=lambda f: f.relative_to(src_dir).as_posix())
@@ -344,22 +340,81 @@ def curate_folder(src_dir: str | Path, out_dir: str | Path, manifest_path: str |
             raise DataError(f"{src_dir}: two assets are named {f.stem!r} ({stems[f.stem]} and {f}); asset ids are "
                             "file names, rename one")
         stems[f.stem] = f
-    accepted, rejected = [], []
-    for f in files:
-        aid = f.stem
+    return files
+
+
+def _curate_resumable(f: Path, out_dir: Path, settings: CurationSettings, logger) -> tuple[str, dict]:
+    """("accepted" | "rejected", entry) for one GLB, reusing ``out_dir/<id>.record.json`` when it was
+    written for this file (path, size, mtime) and these settings, and its curated GLB is intact."""
+    from .io import fingerprint, read_json
+
+    aid = f.stem
+    st = f.stat()
+    key = fingerprint({"settings": settings.model_dump(), "source": str(f), "size": st.st_size, "mtime_ns": st.st_mtime_ns})
+    rec_path = out_dir / f"{aid}.record.json"
+    if rec_path.is_file():
         try:
-            scene, record = curate_asset(f, settings)
-        except AssetRejected as rej:
-            logger(f"rejected {f}: {rej.reason}")
-            rejected.append({"id": aid, "source": str(f), "reason": rej.reason})
-            continue
+            rec = read_json(rec_path)
+        except Exception:
+            rec = {}
+        if rec.get("key") == key:
+            kind, entry = rec.get("kind"), rec.get("entry", {})
+            if kind == "rejected" or (kind == "accepted" and Path(entry.get("path", "")).is_file()
+                                      and hashlib.sha256(Path(entry["path"]).read_bytes()).hexdigest() == entry.get("sha256")):
+                return kind, entry
+    try:
+        scene, record = curate_asset(f, settings)
+    except AssetRejected as rej:
+        logger(f"rejected {f}: {rej.reason}")
+        kind, entry = "rejected", {"id": aid, "source": str(f), "reason": rej.reason}
+    else:
         data = scene.export(file_type="glb")
         dst = out_dir / f"{aid}.glb"
         with atomic_path(dst) as tmp:
             tmp.write_bytes(data)
         logger(f"accepted {f}: {record['faces_in']} -> {record['faces_out']} faces")
-        accepted.append({"id": aid, "source": str(f), "path": str(dst),
-                         "sha256": hashlib.sha256(data).hexdigest(), **record})
-    manifest = {"settings": settings.model_dump(), "accepted": accepted, "rejected": rejected}
+        kind, entry = "accepted", {"id": aid, "source": str(f), "path": str(dst),
+                                   "sha256": hashlib.sha256(data).hexdigest(), **record}
+    write_json(rec_path, {"key": key, "kind": kind, "entry": entry})
+    return kind, entry
+
+
+def curate_folder(src_dir: str | Path, out_dir: str | Path, manifest_path: str | Path,
+                  settings: CurationSettings, logger=print, shard: tuple[int, int] = (0, 1)) -> dict:
+    """Curate the GLBs under ``src_dir`` (:func:`list_glbs`) into ``out_dir`` and write the manifest (JSON).
+
+    Manifest: ``{"settings": ..., "accepted": [{id, path, sha256, ...record}], "rejected":
+    [{id, source, reason}]}``, sorted by id so equal inputs give identical manifests. ``shard`` = (k, n):
+    only every n-th file from the k-th (one job of an array; :func:`merge_manifests` joins them). Each
+    asset's result is kept beside its GLB (``<id>.record.json``), so a rerun after a kill or a timeout
+    redoes only the assets not finished.
+    """
+    k, n = (int(v) for v in shard)
+    if not (n >= 1 and 0 <= k < n):
+        raise ValueError(f"shard {k} of {n}: need 0 <= k < n")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    accepted, rejected = [], []
+    for f in list_glbs(src_dir)[k::n]:
+        kind, entry = _curate_resumable(f, out_dir, settings, logger)
+        (accepted if kind == "accepted" else rejected).append(entry)
+    manifest = {"settings": settings.model_dump(), "accepted": sorted(accepted, key=lambda e: e["id"]),
+                "rejected": sorted(rejected, key=lambda e: e["id"])}
+    write_json(manifest_path, manifest)
+    return manifest
+
+
+def merge_manifests(shard_manifests, manifest_path: str | Path) -> dict:
+    """One manifest from the shard manifests of one curation (equal settings), sorted by id."""
+    from .io import DataError, read_json
+
+    parts = [read_json(p) for p in shard_manifests]
+    if not parts:
+        raise DataError(f"{manifest_path}: no shard manifests to merge")
+    if any(p["settings"] != parts[0]["settings"] for p in parts):
+        raise DataError(f"{manifest_path}: shard manifests were curated with different settings; rerun the curation")
+    manifest = {"settings": parts[0]["settings"],
+                "accepted": sorted((e for p in parts for e in p["accepted"]), key=lambda e: e["id"]),
+                "rejected": sorted((e for p in parts for e in p["rejected"]), key=lambda e: e["id"])}
     write_json(manifest_path, manifest)
     return manifest

@@ -102,3 +102,34 @@ def test_manifest_is_deterministic(curated, tmp_path):
                                  assets.CurationSettings(target_size_m=0.8, max_faces=5000), logger=lambda m: None)
     strip = lambda man: [{k: v for k, v in a.items() if k not in ("path",)} for a in man["accepted"]]
     assert strip(again) == strip(json.loads((d / "manifest.json").read_text()))
+
+
+def test_sharded_curation_merges_to_the_one_job_manifest_and_resumes_per_asset(curated, tmp_path):
+    """Curation as an array of 3 jobs gives the one-job manifest; a rerun after a job was killed
+    mid-way redoes only the asset it had not finished, and a changed setting redoes all."""
+    d, whole = curated
+    settings = assets.CurationSettings(target_size_m=0.8, max_faces=5000)
+    out = d / "cur"                                     # the one-job run's folder: its records are reused
+    shards = [tmp_path / f"{k}.json" for k in range(3)]
+    done = []
+    for k, path in enumerate(shards):
+        assets.curate_folder(d / "raw", out, path, settings, logger=done.append, shard=(k, 3))
+    assert done == []                                   # every asset reused from the one-job run
+    merged = assets.merge_manifests(shards, tmp_path / "manifest.json")
+    assert merged == whole and (tmp_path / "manifest.json").read_bytes() == (d / "manifest.json").read_bytes()
+    # a job killed after writing one GLB and before its record: that asset alone is redone
+    victim = merged["accepted"][0]
+    (out / f"{victim['id']}.record.json").unlink()
+    k = next(i for i, s in enumerate(shards) if victim["id"] in {e["id"] for e in json.loads(s.read_text())["accepted"]})
+    assets.curate_folder(d / "raw", out, shards[k], settings, logger=done.append, shard=(k, 3))
+    assert len(done) == 1 and victim["id"] in done[0]
+    # a curated GLB changed on disk is not trusted
+    Path(victim["path"]).write_bytes(b"garbage")
+    done.clear()
+    assets.curate_folder(d / "raw", out, shards[k], settings, logger=done.append, shard=(k, 3))
+    assert len(done) == 1 and Path(victim["path"]).read_bytes()[:4] == b"glTF"
+    # other settings: nothing reused
+    done.clear()
+    assets.curate_folder(d / "raw", out, tmp_path / "other.json", assets.CurationSettings(target_size_m=0.5, max_faces=5000),
+                         logger=done.append)
+    assert len(done) == len(whole["accepted"]) + len(whole["rejected"])

@@ -22,6 +22,7 @@ def expected_gt_counts(cfg):
     return {
         "generate_assets": 1 if cfg["assets"]["source"] == "procedural" else 0,
         "curate_assets": 1,
+        "curate_assets_shard": cfg["assets"]["curation_jobs"],
         "sample_scene": cfg["scenes"]["count"],
         "render_buffers": len(trajs),
         "render_rgb": sum(len(t["render_lights"]) for t in trajs),
@@ -69,7 +70,8 @@ def test_clean_buffers_training_needs_no_reconstruction(default_config, paper_co
     counts = job_counts(res.stdout)
     by, trajs = _split_counts(cfg)
     targets = sum(len(t["target_lights"]) for t in trajs["train"])
-    expected = {"generate_assets": 1, "curate_assets": 1, "sample_scene": len(by["train"]),
+    expected = {"generate_assets": 1, "curate_assets": 1, "curate_assets_shard": cfg["assets"]["curation_jobs"],
+                "sample_scene": len(by["train"]),
                 "render_buffers": len(trajs["train"]), "render_rgb": targets, "render_proxy_gt": targets,
                 "dataset": 1, "train_refiner": 1}
     if cfg["assets"]["source"] == "folder":  # the paper's Objaverse folder: nothing is generated
@@ -148,7 +150,8 @@ def test_single_rgb_target_pulls_only_its_chain(default_config):
     t = plan["trajectories"][0]
     target = f"results/gt/s0000/{t['id']}/rgb/{t['source_light']}.json"
     counts = job_counts(dry_run(target).stdout)
-    assert counts == {"generate_assets": 1, "curate_assets": 1, "sample_scene": 1, "render_rgb": 1}
+    assert counts == {"generate_assets": 1, "curate_assets": 1, "curate_assets_shard": default_config["assets"]["curation_jobs"],
+                      "sample_scene": 1, "render_rgb": 1}
 
 
 def test_unused_lighting_is_not_a_target(default_config):

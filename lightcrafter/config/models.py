@@ -71,6 +71,8 @@ class Assets(Section):
     dir: Optional[str] = Field(None, description="folder of `.glb` files when `source: folder` (checked at start-up)")
     procedural: ProceduralAssets = Field(default_factory=ProceduralAssets)
     curation: Curation = Field(default_factory=Curation)
+    curation_jobs: int = Field(32, ge=1, le=4096, description="curation runs as this many jobs (a SLURM job array), "
+                               "each taking every n-th GLB; a rerun redoes only unfinished assets")
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -481,7 +483,7 @@ class Config(Section):
 
 # Keys that only change how big a run is, not which code paths it takes (a rehearsal shrinks only these).
 SIZE_KEYS: tuple[str, ...] = (
-    "assets.procedural.count", "assets.curation.max_faces",
+    "assets.procedural.count", "assets.curation.max_faces", "assets.curation_jobs",
     "scenes.count", "scenes.splits", "scenes.width", "scenes.height", "scenes.num_frames",
     "scenes.orbit_deg_per_frame", "scenes.light_rotation_deg_per_frame",
     "render.spp", "render.max_bounces", "proxy.spp", "longform.num_frames", "longform.spp",

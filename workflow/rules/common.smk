@@ -58,6 +58,7 @@ BENCHMARKS = (
     + (["mit"] if MIT["pairs"] else [])
 )
 
+CURATION_JOBS = int(config["assets"]["curation_jobs"])
 GPU_RENDER_DEVICES = ("cuda", "optix")
 
 
