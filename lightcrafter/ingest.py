@@ -222,7 +222,7 @@ def ingest_clip(clip: dict, clip_id: str, out_dir: str | Path, *, width: int, he
     folder = FrameFolder(out_dir, inputs)
     for i in folder.missing(range(num_frames), io.read_rgb_exr):
         folder.stamp()
-        io.write_rgb_exr(folder.path(i), io.display_to_linear(fitted[i].astype(np.float32) / 255.0))
+        io.write_frame_exr(folder.path(i), io.display_to_linear(fitted[i].astype(np.float32) / 255.0))
     step_fps = fps / step
     io.write_video(out_dir.with_suffix(".mp4"), fitted, fps=step_fps)
     manifest = {**base, "width": width, "height": height, "num_frames": num_frames, "fps": step_fps,

@@ -10,6 +10,14 @@ Conventions
   ``normal.{X,Y,Z}`` world-space unit normals, ``albedo.{R,G,B}`` linear base colour,
   ``roughness`` and ``metallic`` in [0, 1], ``mask`` in {0, 1} (1 = surface, 0 = background).
 * Radiance frames: linear HDR RGB (scene-referred, no view transform), channels R, G, B.
+* Storage precision (all EXRs ZIP-compressed, lossless): video frames (ground truth, proxies, ingested
+  and refined frames) are **half float**: 11 significant bits (0.05 %, far below an 8-bit display
+  step) and a range to 65504, beyond which a frame's radiance is clipped (:data:`HALF_MAX`; only pixels
+  that see an emitter directly, already white on display). Buffers are half float except ``depth``,
+  which stays **float32**: half's relative step at 10 m is 5 mm, enough to move a shadow ray's origin
+  through its own surface, and Phi's arbitrary-unit depths can exceed 65504. Environment maps stay
+  float32 (a sun texel of a PolyHaven HDRI exceeds 65504), as do confidences and the paper stack's
+  inputs.
 * Display frames: produced only by :func:`linear_to_display` (exposure, then the sRGB
   encoding curve from colour-science, clipped to [0, 1]); the same transform is used for
   proxies and targets.
@@ -154,14 +162,26 @@ def stamp_frame_dir(frame_dir: str | os.PathLike, inputs) -> None:
 
 
 # ----------------------------------------------------------------------------- EXR
-def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], half: bool = False) -> None:
-    """Write single-part scanline EXR with one float channel per key (H x W arrays), atomically."""
+HALF_MAX = 65504.0   # the largest finite half-float value
+FLOAT32_BUFFER_CHANNELS = ("depth",)   # buffer channels stored as float32 (module docstring); the rest half
+
+
+def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], half: bool | tuple[str, ...] = False) -> None:
+    """Write single-part scanline EXR with one float channel per key (H x W arrays), atomically.
+
+    ``half``: True = every channel half float, a tuple = those channels half, the others float32.
+    Finite values beyond the half range are clipped to +-HALF_MAX (inf and NaN are kept).
+    """
     import OpenEXR
 
     arrays = {}
     shape = None
     for name, arr in channels.items():
-        arr = np.ascontiguousarray(arr, dtype=np.float16 if half else np.float32)
+        as_half = half is True or (not isinstance(half, bool) and name in half)
+        if as_half:
+            a = np.asarray(arr, dtype=np.float32)
+            arr = np.where(np.isfinite(a), np.clip(a, -HALF_MAX, HALF_MAX), a)
+        arr = np.ascontiguousarray(arr, dtype=np.float16 if as_half else np.float32)
         if arr.ndim != 2:
             raise ValueError(f"{path}: channel {name!r} must be 2-D (H, W), got shape {arr.shape}")
         if shape is not None and arr.shape != shape:
@@ -196,12 +216,18 @@ def read_exr(path: str | os.PathLike, required: tuple[str, ...] | None = None) -
     return chans
 
 
-def write_rgb_exr(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write linear HDR RGB (H, W, 3) as channels R, G, B (float32)."""
+def write_rgb_exr(path: str | os.PathLike, rgb: np.ndarray, half: bool = False) -> None:
+    """Write linear HDR RGB (H, W, 3) as channels R, G, B (float32; half float with ``half``)."""
     rgb = np.asarray(rgb, dtype=np.float32)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"{path}: expected (H, W, 3) linear RGB, got {rgb.shape}")
-    write_exr(path, {c: rgb[..., i] for i, c in enumerate(RGB_CHANNELS)})
+    write_exr(path, {c: rgb[..., i] for i, c in enumerate(RGB_CHANNELS)}, half=half)
+
+
+def write_frame_exr(path: str | os.PathLike, rgb: np.ndarray) -> None:
+    """One video frame (linear RGB, H x W x 3) in the frames' storage precision: half float, values
+    beyond HALF_MAX clipped (module docstring)."""
+    write_rgb_exr(path, rgb, half=True)
 
 
 def read_rgb_exr(path: str | os.PathLike, allow_nonfinite: bool = False) -> np.ndarray:
@@ -252,6 +278,7 @@ def write_buffers(path: str | os.PathLike, b: Buffers) -> None:
             "metallic": b.metallic,
             "mask": b.mask,
         },
+        half=tuple(c for c in BUFFER_CHANNELS if c not in FLOAT32_BUFFER_CHANNELS),
     )
 
 

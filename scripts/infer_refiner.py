@@ -22,7 +22,7 @@ import torch
 
 import _cli  # puts the repository on sys.path; run() is the one error path
 
-from lightcrafter.io import DataError, display_to_linear, to_uint8, write_json, write_rgb_exr, write_video
+from lightcrafter.io import DataError, display_to_linear, to_uint8, write_frame_exr, write_json, write_video
 from lightcrafter.refiner import MissingWeightsError, PairsDataset, load_model, refine_video
 from lightcrafter.refiner.baselines import apply_affine_colour, load_affine_colour, load_regressor, regress_video
 from lightcrafter.refiner.data import to_display_frames
@@ -42,7 +42,7 @@ def autoencoder_round_trip_psnr_db(model, video, pad_mode: str) -> float:
 
 def write_frames(folder: Path, disp, exposure_ev: float) -> None:
     for f, frame in enumerate(disp):
-        write_rgb_exr(folder / f"{f:04d}.exr", display_to_linear(frame, exposure_ev))
+        write_frame_exr(folder / f"{f:04d}.exr", display_to_linear(frame, exposure_ev))
 
 
 def main() -> int:

@@ -52,7 +52,7 @@ def main() -> int:
         disp = to_display_frames(refined)
         videos[mode] = disp
         for i, f in enumerate(disp):
-            io.write_rgb_exr(out / mode / f"{i:04d}.exr", io.display_to_linear(f, ev))
+            io.write_frame_exr(out / mode / f"{i:04d}.exr", io.display_to_linear(f, ev))
     result = longform.analyse(videos, target, int(cfg["infer"]["window"]))
     result["seconds"] = seconds
     result["note"] = (f"{n}-frame clip; proxy from ground-truth buffers (the oracle proxy: this checks the tiling, "

@@ -47,7 +47,7 @@ def main() -> int:
     disp = to_display_frames(refine_video(model, proxy[None], cfg, generator=gen)[0])
     sec = time.perf_counter() - t0
     for i, f in enumerate(disp):
-        io.write_rgb_exr(out / f"{i:04d}.exr", io.display_to_linear(f, ev))
+        io.write_frame_exr(out / f"{i:04d}.exr", io.display_to_linear(f, ev))
     io.write_video(out.with_suffix(".mp4"), io.to_uint8(disp), fps=float(man.get("fps", 24)))
     folders = [Path(p) for p in a.strip_with] + [proxy_dir, out]
     if a.strip_with:

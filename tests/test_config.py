@@ -155,11 +155,27 @@ def paper_dry_run(paper_site, tmp_path_factory):
            "--configfile", paper_site["site"]]
     p = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=600, env=venv_env())
     assert p.returncode == 0, p.stderr[-3000:]
-    return p.stdout
+    return p.stdout + "\n" + p.stderr
 
 
 def _commands(text: str) -> list[str]:
     return [line.strip() for line in text.splitlines() if "scripts/" in line and ".py" in line]
+
+
+def test_the_paper_dry_run_prints_expected_files_and_bytes_per_product(paper_dry_run, paper_config):
+    """The dry run's storage table (lightcrafter.storage) counts the files the planned jobs write."""
+    from workflow_util import job_counts
+
+    lines = paper_dry_run.split("Expected storage of this run", 1)[1].splitlines()[2:]
+    files = {ln.split()[0]: int(ln.split()[1].replace(",", "")) for ln in lines if ln.strip() and ln.split()[0] != "total"
+             and len(ln.split()) > 2 and ln.split()[1].replace(",", "").isdigit()}
+    counts, n = job_counts(paper_dry_run), paper_config["scenes"]["num_frames"]
+    assert files["gt_rgb"] == counts["render_rgb"] * n and files["proxy"] == counts["render_proxy"] * n
+    assert files["proxy_gt"] == counts["render_proxy_gt"] * n
+    assert files["pseudo_input"] == counts["fit_envmap"] * n > 0
+    assert files["phi_synthetic"] == counts["reconstruct_synthetic"] * n
+    total = next(ln for ln in lines if ln.startswith("total"))
+    assert sum(files.values()) == int(total.split()[1].replace(",", "")) > 800_000 and " TB" in total
 
 
 def test_no_shell_command_of_the_paper_run_is_longer_than_100_kib(paper_dry_run):

@@ -366,8 +366,9 @@ def test_fit_envmap_outputs_render_with_R_and_rerun_is_skipped(scene, tmp_path):
     views, _ = read_clip(scene["clip"])
     r = ProxyRenderer(lt, RenderSettings(spp=4))
     r.prepare(views)
+    # frames are stored in half float (lightcrafter.io): equal to R's render up to half's rounding
     np.testing.assert_allclose(io.read_rgb_exr(out / "pseudo" / "0003.exr"), r.render(views[3], frame=3),
-                               rtol=1e-5, atol=1e-6)
+                               rtol=2.0**-11, atol=1e-6)
     assert m["pseudo_psnr_db"]["mean"] > 25
     mtime = (out / "params.npz").stat().st_mtime_ns
     m2 = fit_envmap(scene["clip"], scene["frames_dir"], out, s, render)

@@ -42,7 +42,9 @@ def test_embedded_real_clips_are_found_offline(tmp_path):
     assert all(f.shape == (H, W, 3) for f in frames)
     # linear = inverse display transform: back through the display transform gives 8-bit values
     disp = io.linear_to_display(frames[0]) * 255
-    assert np.abs(disp - np.round(disp)).max() < 1e-2
+    # frames are stored in half float (lightcrafter.io): within 0.05 of an 8-bit code, so the video's
+    # codes come back exactly when rounded
+    assert np.abs(disp - np.round(disp)).max() < 5e-2
 
 
 def test_crop_keeps_the_centre_and_aspect():

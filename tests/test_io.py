@@ -81,3 +81,33 @@ def test_video_round_trip_pads_odd_sizes(tmp_path):
     io.write_video(tmp_path / "v.mp4", frames)
     back, fps = io.read_video(tmp_path / "v.mp4")
     assert back.shape == (3, 34, 46, 3) and fps == 24.0
+
+
+def test_storage_precision_depth_float32_the_rest_half_and_radiance_clipped_to_half(tmp_path):
+    """Buffers: depth bit-exact (float32), other channels to half precision; frames: half float,
+    radiance beyond 65504 clipped, not turned into inf (a reader would reject the frame)."""
+    import OpenEXR
+
+    rng = np.random.default_rng(0)
+    h, w = 16, 24
+    n = rng.normal(size=(h, w, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    b = io.Buffers(depth=rng.uniform(0.5, 2e5, (h, w)).astype(np.float32), normal=n,
+                   albedo=rng.uniform(0, 1, (h, w, 3)).astype(np.float32), roughness=rng.uniform(0, 1, (h, w)).astype(np.float32),
+                   metallic=rng.uniform(0, 1, (h, w)).astype(np.float32), mask=np.ones((h, w), np.float32))
+    io.write_buffers(tmp_path / "b.exr", b)
+    with OpenEXR.File(str(tmp_path / "b.exr"), separate_channels=True) as f:
+        types = {k: v.pixels.dtype for k, v in f.channels().items()}
+    assert types.pop("depth") == np.float32 and set(types.values()) == {np.dtype(np.float16)}
+    r = io.read_buffers(tmp_path / "b.exr")
+    np.testing.assert_array_equal(r.depth, b.depth)                        # beyond half's range, exact
+    np.testing.assert_allclose(r.albedo, b.albedo, rtol=2.0**-11, atol=2.0**-14)
+    assert np.degrees(np.arccos(np.clip((r.normal * n).sum(-1), -1, 1))).max() < 0.1
+    rgb = rng.uniform(0, 4, (h, w, 3)).astype(np.float32)
+    rgb[0, 0] = 2e5                                                       # a pixel that sees the sun
+    io.write_frame_exr(tmp_path / "f.exr", rgb)
+    back = io.read_rgb_exr(tmp_path / "f.exr")                             # finite: accepted
+    assert back[0, 0].tolist() == [io.HALF_MAX] * 3
+    np.testing.assert_allclose(back[1:], rgb[1:], rtol=2.0**-11)
+    io.write_rgb_exr(tmp_path / "f32.exr", rgb)
+    assert (tmp_path / "f.exr").stat().st_size < 0.75 * (tmp_path / "f32.exr").stat().st_size

@@ -66,7 +66,8 @@ def test_known_similarity_is_undone(tmp_path, static):
         np.testing.assert_allclose(a.c2w, g.c2w, atol=1e-4)
         ok = np.isfinite(g.buffers.depth)
         np.testing.assert_allclose(a.buffers.depth[ok], g.buffers.depth[ok], rtol=1e-4)
-        np.testing.assert_allclose(a.buffers.normal, g.buffers.normal, atol=1e-4)
+        # normals are stored in half float (lightcrafter.io): 2^-11 relative, after the rotation
+        np.testing.assert_allclose(a.buffers.normal, g.buffers.normal, atol=1e-3)
 
 
 def test_per_pixel_errors_survive_alignment(tmp_path):

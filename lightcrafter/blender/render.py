@@ -205,7 +205,7 @@ def render_rgb(
         for i in todo:
             build.set_frame(built, traj["frames"][i])
             ch = render_layers()
-            io.write_rgb_exr(folder.path(i), np.stack([ch[f"Combined.{c}"] for c in "RGB"], axis=-1))
+            io.write_frame_exr(folder.path(i), np.stack([ch[f"Combined.{c}"] for c in "RGB"], axis=-1))
     files = [folder.path(i) for i in range(n)]
     frames = np.stack([io.read_rgb_exr(f) for f in files])
     io.write_video(

@@ -70,7 +70,7 @@ def render_views(views: list[FrameView], lighting: Lighting, settings: RenderSet
         else:
             renderer.prepare(views)
         for i in todo:
-            io.write_rgb_exr(folder.path(i), renderer.render(views[i], frame=i))
+            io.write_frame_exr(folder.path(i), renderer.render(views[i], frame=i))
     seconds = time.perf_counter() - t0
     return [io.read_rgb_exr(folder.path(i)) for i in range(len(views))], renderer, seconds
 

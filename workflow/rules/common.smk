@@ -38,6 +38,21 @@ _PLANS = {sid: plan_scene(config["scenes"], SEED, i) for i, sid in enumerate(SCE
 REAL = real_clips(config["real"], seed=SEED)
 # MIT Multi-Illumination benchmark (config mit.root; empty by default): one-frame clips and pairs.
 MIT = mit_plan(config["mit"])
+
+
+def _is_dry_run(argv) -> bool:
+    """-n / --dry-run on Snakemake's command line (also in a flag group such as -np)."""
+    return any(a in ("--dry-run", "--dryrun") or (a[:1] == "-" and a[1:2] != "-" and a[1:].isalpha() and "n" in a)
+               for a in argv[1:])
+
+
+# A dry run prints the expected files and bytes per product (lightcrafter.storage), to stderr.
+if workflow.is_main_process and _is_dry_run(sys.argv):
+    from lightcrafter import storage as _storage
+
+    _TABLE = _storage.table(_storage.project(config))
+    print(f"Expected storage of this run (python -m lightcrafter.storage --measured <results> applies measured "
+          f"compression):\n{_TABLE}", file=sys.stderr)
 for _cid, _c in MIT["clips"].items():
     REAL[_cid] = {
         "video": _c["image"],
