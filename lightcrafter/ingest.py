@@ -92,13 +92,17 @@ def dl3dv_scenes(root: str | Path) -> tuple[Path, ...]:
 def dl3dv_videos(d: dict, seed: int = 0) -> list[dict]:
     """``real.videos`` entries for ``real.dl3dv`` ({root, max_scenes, clips_per_scene, frame_step,
     test_fraction, fov_x_deg}): the first max_scenes scene folders; a seeded choice by scene path (not
-    by position, so adding scenes moves no other scene) holds out round(test_fraction x n) as test."""
+    by position, so adding scenes moves no other scene) holds out round(test_fraction x n) as test, at
+    least one when test_fraction > 0 and n >= 2."""
     if not d or not d.get("root"):
         return []
     root = Path(d["root"])
     scenes = dl3dv_scenes(d["root"])[: d.get("max_scenes") or None]
     rank = sorted(scenes, key=lambda p: hashlib.sha256(f"{seed}:{p.relative_to(root).as_posix()}".encode()).hexdigest())
-    test = set(rank[: round(float(d.get("test_fraction", 0.0)) * len(scenes))])
+    frac = float(d.get("test_fraction", 0.0))
+    # at least one test scene when some are asked for and there are two or more scenes
+    n_test = max(1, round(frac * len(scenes))) if frac > 0 and len(scenes) >= 2 else 0
+    test = set(rank[:n_test])
     return [{"path": str(p), "split": "test" if p in test else "train", "clips": int(d.get("clips_per_scene", 1)),
              "frame_step": int(d.get("frame_step", 1)), "start_frame": 0, "fov_x_deg": float(d.get("fov_x_deg", 60.0)),
              "camera_static": False} for p in scenes]

@@ -87,8 +87,10 @@ def main() -> int:
             print(f"reconstruct: {exc}", file=sys.stderr)
             return 1
         shutil.rmtree(out / "buffers", ignore_errors=True)
-        _drop_tool_work(out)
-        write_skipped(out, str(exc), {"clip_id": name})
+        reason = str(exc)
+        if _drop_tool_work(out):  # the tool logs the reason names now live in tool_logs/
+            reason = reason.replace(str(out / ".work") + "/", str(out / "tool_logs") + "/")
+        write_skipped(out, reason, {"clip_id": name})
         print(f"reconstruct: {name}: left out: {exc}")
         return 0
     except (io.DataError, ValueError) as exc:
@@ -100,16 +102,18 @@ def main() -> int:
     return 0
 
 
-def _drop_tool_work(out: Path) -> None:
-    """A skipped paper-stack clip keeps only its tools' logs (out/tool_logs/), not their outputs."""
+def _drop_tool_work(out: Path) -> bool:
+    """A skipped paper-stack clip keeps only its tools' logs (out/tool_logs/), not their outputs.
+    Returns whether there were any."""
     work = out / ".work"
-    if work.is_dir():
-        logs = out / "tool_logs"
-        logs.mkdir(exist_ok=True)
-        for log in work.glob("*.log"):
-            shutil.copyfile(log, logs / log.name)
+    logs = sorted(work.glob("*.log")) if work.is_dir() else []
+    if logs:
+        (out / "tool_logs").mkdir(exist_ok=True)
+        for log in logs:
+            shutil.copyfile(log, out / "tool_logs" / log.name)
     for d in (".work", "tool_grid"):
         shutil.rmtree(out / d, ignore_errors=True)
+    return bool(logs)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,9 @@ from lightcrafter.blender import build, testing
 from lightcrafter.lights import builtin_hdris, resolve_hdri
 
 REPO = Path(__file__).resolve().parents[1]
-MATERIAL_TOL = 1e-4  # measured max deviation 6e-7 (AOVs are float copies; the GLB texture decode is exact)
+# Buffers are stored in half float except depth (lightcrafter.io): rounding to 11 significant bits is at
+# most 2.4e-4 for values in [0.5, 1) (6e-7 before, in float32: AOVs are float copies, the GLB decode exact).
+MATERIAL_TOL = 5e-4
 UNPROJ_MEDIAN_MM, UNPROJ_P90_MM = 0.5, 2.0  # measured: median ~0.003 mm, p90 ~0.01 mm
 
 
@@ -151,7 +153,7 @@ def test_normals_unit_and_materials_in_range(orbit_buffers):
         assert set(np.unique(ch["mask"])) <= {0.0, 1.0}
         assert 0.5 < m.mean() < 1.0  # objects and ground in view, some sky
         normal = np.stack([ch[f"normal.{c}"] for c in "XYZ"], axis=-1)
-        np.testing.assert_allclose(np.linalg.norm(normal[m], axis=-1), 1.0, atol=1e-4)
+        np.testing.assert_allclose(np.linalg.norm(normal[m], axis=-1), 1.0, atol=1e-3)   # half-float storage
         depth = ch["depth"]
         assert np.isfinite(depth[m]).all() and (depth[m] > 0).all() and np.isinf(depth[~m]).all()
         for name in ("albedo.R", "albedo.G", "albedo.B", "roughness", "metallic"):

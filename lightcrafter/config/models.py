@@ -485,9 +485,10 @@ class Config(Section):
 SIZE_KEYS: tuple[str, ...] = (
     "assets.procedural.count", "assets.curation.max_faces", "assets.curation_jobs",
     "scenes.count", "scenes.splits", "scenes.width", "scenes.height", "scenes.num_frames",
+    "scenes.lightings_per_scene", "scenes.targets_per_trajectory",
     "scenes.orbit_deg_per_frame", "scenes.light_rotation_deg_per_frame",
     "render.spp", "render.max_bounces", "proxy.spp", "longform.num_frames", "longform.spp",
-    "real.dl3dv.max_scenes", "real.dl3dv.clips_per_scene", "mit.max_scenes",
+    "real.dl3dv.max_scenes", "real.dl3dv.clips_per_scene", "mit.max_scenes", "mit.target_dirs",
     "envfit.iterations", "envfit.transport_pixels", "envfit.env_height", "envfit.env_width",
     "recon.estimator.steps", "recon.estimator.eval_every",
     "refiner.train.max_steps", "refiner.train.checkpoint_every", "refiner.infer.num_steps",

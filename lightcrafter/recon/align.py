@@ -12,8 +12,8 @@ every local error (holes, blur, wrong materials, per-frame depth errors, camera 
     cameras' own error), so the orientations fix R;
   - s: the ratio of the RMS spreads of the camera centres about their means (exact for a similarity,
     and positive however wrong R is, where the least-squares scale given R can turn negative on a
-    poorly reconstructed path); t = mean(c_gt) - s R mean(c_est); a static camera (all centres equal)
-    takes s from the depth maps instead;
+    poorly reconstructed path); t = mean(c_gt) - s R mean(c_est); a static camera (all centres equal,
+    in the ground truth or the estimate) takes s from the depth maps instead;
 * a depth-scale correction k (1 number): the median over surface pixels of d_gt / (s d_est), applied
   to every depth map, so depth and camera units agree.
 
@@ -60,11 +60,14 @@ def estimate(c2w_est: np.ndarray, c2w_gt: np.ndarray, depth_est: list[np.ndarray
     R = closest_rotation(sum(g[:3, :3] @ e[:3, :3].T for e, g in zip(c2w_est, c2w_gt)))
     ce, cg = c2w_est[:, :3, 3], c2w_gt[:, :3, 3]
     ce_c, cg_c = ce - ce.mean(0), cg - cg.mean(0)
-    spread = float((ce_c ** 2).sum())
+    spread, spread_gt = float((ce_c ** 2).sum()), float((cg_c ** 2).sum())
     ratio = _depth_ratio(depth_est, depth_gt)
-    if spread > 1e-12 * max(1.0, float((ce ** 2).sum())):
-        s = float(np.sqrt((cg_c ** 2).sum() / spread))  # RMS spread ratio: positive whatever the error of R
-    else:  # static camera: the depth maps carry the scale
+    moving = (spread > 1e-12 * max(1.0, float((ce ** 2).sum()))
+              and spread_gt > 1e-12 * max(1.0, float((cg ** 2).sum())))
+    if moving:
+        s = float(np.sqrt(spread_gt / spread))  # RMS spread ratio: positive whatever the error of R
+    else:  # a static camera (in the ground truth or the estimate; an estimate's jitter about a static
+        # camera has no scale to match): the depth maps carry the scale
         if ratio is None:
             raise io.DataError(f"{where}: static camera and no depth to scale the reconstruction; cannot align")
         s = ratio

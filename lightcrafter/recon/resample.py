@@ -41,6 +41,20 @@ def resample_buffers(b: io.Buffers, x: np.ndarray, y: np.ndarray, extend_px: flo
                       mask=valid.astype(np.float32))
 
 
+MAX_PIXEL_ASPECT_ERROR = 0.01   # a tool's integer rounding of one side (< 1 px over >= 100 px)
+
+
+def square_pixels(K: np.ndarray) -> np.ndarray:
+    """K with fx = fy = sqrt(fx fy) when they differ by less than MAX_PIXEL_ASPECT_ERROR: a tool that
+    resizes to whole pixels rounds one side (96x64 -> UniDepth's 640x427, not 426.7), which makes the
+    mapped pixels non-square by that rounding only; R needs square pixels."""
+    K = np.array(K, np.float64)
+    fx, fy = K[0, 0], K[1, 1]
+    if fx > 0 and fy > 0 and fx != fy and abs(fx / fy - 1.0) < MAX_PIXEL_ASPECT_ERROR:
+        K[0, 0] = K[1, 1] = float(np.sqrt(fx * fy))
+    return K
+
+
 def onto_grid(src_clip, out_clip, width: int, height: int, sx: float, ox: float, sy: float, oy: float,
               extend_px: float = 0.0) -> dict:
     """Write ``out_clip``: ``src_clip`` sampled onto a ``width`` x ``height`` grid (see module docstring)."""
@@ -61,7 +75,7 @@ def onto_grid(src_clip, out_clip, width: int, height: int, sx: float, ox: float,
         "format", "width", "height", "num_frames", "fps", "buffer_frames", "frames", "cameras", "confidence",
         "camera_static", "scene_static", "units", "producer", "content_id")}
     return clipmod.write_clip(
-        out_clip, serve=serve, K=[np.linalg.inv(A) @ v.K for v in views], c2w=[v.c2w for v in views],
+        out_clip, serve=serve, K=[square_pixels(np.linalg.inv(A) @ v.K) for v in views], c2w=[v.c2w for v in views],
         width=width, height=height, fps=info.fps, camera_static=info.camera_static, scene_static=info.scene_static,
         units=info.units, producer={"stage": "resample", "source": info.producer}, content_id=io.fingerprint(inputs),
         extra=keep)
