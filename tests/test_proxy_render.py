@@ -202,3 +202,15 @@ def test_stratified_sampler_beats_independent_at_equal_spp():
         img, _ = render_clip(light, views, spp=16, sampler=smp)
         err[smp] = float(np.mean((img[0] - ref[0]) ** 2))
     assert err["multijitter"] < 0.7 * err["independent"], err
+
+
+def test_a_conda_environments_libllvm_is_found_for_drjit(tmp_path):
+    """In a conda env (envs/mitsuba.yaml) libLLVM lies in $CONDA_PREFIX/lib, off the loader's path: the
+    newest one there is what DRJIT_LIBLLVM_PATH gets; none there, nothing is set."""
+    from lightcrafter.proxy.mitsuba_setup import prefix_libllvm
+
+    assert prefix_libllvm(tmp_path) is None
+    (tmp_path / "lib").mkdir()
+    for name in ("libLLVM-18.so", "libLLVM-19.so", "libLTO.so"):
+        (tmp_path / "lib" / name).write_bytes(b"")
+    assert prefix_libllvm(tmp_path).name == "libLLVM-19.so"
