@@ -223,3 +223,11 @@ def test_dry_run_with_the_profile_assigns_partitions_and_gpus():
     for rule, group in prof.get("groups", {}).items():
         if rule in seen:
             assert f"Group job {group} " in res.stdout, f"{rule} not grouped as {group}"
+
+
+def test_no_slurm_job_arrays():
+    """Plugin 2.6-2.7 array tasks check the first task's outputs (issue #447; shown on the test cluster):
+    the profile batches with groups instead."""
+    prof = profile()
+    assert not prof.get("slurm-array-jobs"), "job arrays fail every task whose first task fails or finishes late"
+    assert {"render_rgb", "reconstruct_real", "fit_envmap", "ingest_video", "curate_assets_shard"} <= set(prof["groups"])
