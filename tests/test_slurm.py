@@ -69,7 +69,8 @@ def single_node_overrides(cluster: LocalSlurm) -> list[str]:
 
 
 def snakemake_cmd(workdir, site_file, *args):
-    return [sys.executable, "-m", "snakemake", "-d", str(workdir), "--configfile", site_file, *args]
+    # --configfile last: it takes several values, so targets after it would be read as config files
+    return [sys.executable, "-m", "snakemake", "-d", str(workdir), *args, "--configfile", site_file]
 
 
 @pytest.fixture(scope="module")

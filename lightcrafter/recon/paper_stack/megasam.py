@@ -175,6 +175,21 @@ class MegaSamResult:
         return int(self.depth.shape[2])
 
 
+def read_npz(path: Path, keys: tuple[str, ...], tool: str, fix: str) -> dict[str, np.ndarray]:
+    """The ``keys`` arrays of a tool's npz; DataError (one line naming the file) when it cannot be read
+    or lacks a key (``fix`` says what to do)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in keys if k not in z.files]
+            if missing:
+                raise DataError(f"{path}: {tool} npz lacks key(s) {missing} (has {sorted(z.files)}); {fix}")
+            return {k: np.asarray(z[k]) for k in keys}
+    except DataError:
+        raise
+    except Exception as exc:  # zipfile / pickle / format errors
+        raise DataError(f"{path}: unreadable npz ({type(exc).__name__}: {exc}); rerun {tool}") from exc
+
+
 def to_world(cam_c2w: np.ndarray) -> np.ndarray:
     """MegaSAM camera-to-world (T, 4, 4) -> ours: ``WORLD_FROM_CAM0 @ inv(C0) @ C_t`` (OpenCV axes kept)."""
     c = np.asarray(cam_c2w, np.float64)
@@ -190,17 +205,8 @@ def load(path: str | os.PathLike, far_clip: float = DEFAULT_FAR_CLIP) -> MegaSam
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: MegaSAM npz not found; check the megasam command's output")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            missing = [k for k in KEYS if k not in z.files]
-            if missing:
-                raise DataError(f"{path}: MegaSAM npz lacks key(s) {missing} (has {sorted(z.files)}); "
-                                f"point the megasam command at cvd_opt.py's *_sgd_cvd_hr.npz")
-            images, depths, K, c2w = (np.asarray(z[k]) for k in KEYS)
-    except DataError:
-        raise
-    except Exception as exc:  # zipfile / pickle / format errors
-        raise DataError(f"{path}: unreadable npz ({type(exc).__name__}: {exc}); rerun MegaSAM") from exc
+    arrays = read_npz(path, KEYS, "MegaSAM", "point the megasam command at cvd_opt.py's *_sgd_cvd_hr.npz")
+    images, depths, K, c2w = (arrays[k] for k in KEYS)
     if depths.ndim != 3 or depths.shape[0] == 0:
         raise DataError(f"{path}: 'depths' must be (T, H, W), got {depths.shape}")
     t, h, w = depths.shape
@@ -242,17 +248,9 @@ def load_unidepth(path: str | os.PathLike, frame: np.ndarray) -> MegaSamResult:
     from lightcrafter.camera import intrinsics
 
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            missing = [k for k in UNIDEPTH_KEYS if k not in z.files]
-            if missing:
-                raise DataError(f"{path}: UniDepth npz lacks key(s) {missing} (has {sorted(z.files)}); a one-frame clip's "
-                                f"megasam command must run UniDepth/scripts/demo_mega-sam.py only")
-            depth, fov = np.asarray(z["depth"], np.float32), float(np.asarray(z["fov"]).reshape(-1)[0])
-    except DataError:
-        raise
-    except Exception as exc:
-        raise DataError(f"{path}: unreadable npz ({type(exc).__name__}: {exc}); rerun UniDepth") from exc
+    arrays = read_npz(path, UNIDEPTH_KEYS, "UniDepth",
+                      "a one-frame clip's megasam command must run UniDepth/scripts/demo_mega-sam.py only")
+    depth, fov = arrays["depth"].astype(np.float32), float(arrays["fov"].reshape(-1)[0])
     H0, W0 = frame.shape[:2]
     grid = unidepth_map(W0, H0)
     if depth.shape != (grid.height, grid.width):
