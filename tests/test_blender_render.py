@@ -319,6 +319,12 @@ def test_cli_records_the_device_and_refuses_a_missing_gpu(scene, tmp_path):
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 1 and len(lines) == 1 and "render.device='cuda'" in lines[0], res.stderr
     assert not (tmp_path / "gpu" / "buffers.json").exists()
+    # killed after its last frame, before the manifest: the rerun renders nothing and records the same device
+    before = (tmp_path / "cpu" / "buffers.json").read_bytes()
+    (tmp_path / "cpu" / "buffers.json").unlink()
+    res = _run_cli("--scene", work / "scene.json", "--traj", "static", "--buffers", tmp_path / "cpu", "--device", "auto")
+    assert res.returncode == 0 and "rendered 0 buffer frame(s)" in res.stdout, res.stdout + res.stderr
+    assert (tmp_path / "cpu" / "buffers.json").read_bytes() == before
 
 
 @pytest.mark.slow

@@ -133,6 +133,7 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
             threads=threads,
             device=device,
         )
+        _note_device(out_dir / "buffers.device", used)
         for i in todo:
             build.set_frame(built, traj["frames"][i])
             io.write_buffers(frames.path(i), layers_to_buffers(render_layers()))
@@ -149,10 +150,21 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
     return len(todo)
 
 
+def _note_device(marker: Path, used: str) -> None:
+    """Record the Cycles device before any frame is rendered (``marker``: a small text file beside the
+    manifest), so that a run killed after its last frame and before its manifest resumes with it."""
+    with io.atomic_path(marker) as tmp:
+        tmp.write_text(used + "\n")
+
+
 def _device_record(manifest_dir: Path, used: str | None, manifest: str = "buffers.json") -> str | None:
-    """The Cycles device of this render; a rerun that rendered nothing keeps the previous manifest's."""
+    """The Cycles device of this render; a rerun that rendered nothing keeps the device the frames were
+    rendered with (the marker :func:`_note_device` wrote), else the previous manifest's."""
     if used is not None:
         return used
+    marker = Path(manifest_dir) / (Path(manifest).stem + ".device")
+    if marker.is_file():
+        return marker.read_text().strip() or None
     old = Path(manifest_dir) / manifest
     if old.is_file():
         data = io.read_json(old)
@@ -202,6 +214,7 @@ def render_rgb(
             clamp_indirect=clamp_indirect,
             device=device,
         )
+        _note_device(out_dir / "rgb" / f"{light_id}.device", used)
         for i in todo:
             build.set_frame(built, traj["frames"][i])
             ch = render_layers()
