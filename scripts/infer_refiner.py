@@ -10,7 +10,12 @@ num_steps, are overridden as given).
 Per pair: OUTDIR/{pair_id}/{frame:04d}.exr (LINEAR RGB, the inverse display transform of the refined
 display frames), OUTDIR/{pair_id}.mp4 (display preview), OUTDIR/{pair_id}_strip.png (frame strip:
 input (the record's source video, if it has one) | proxy | refined | target); the baselines stored
-with the model: OUTDIR/baselines/{regressor,affine_colour}/{pair_id}/{frame:04d}.exr; OUTDIR/manifest.json last.
+with the model: OUTDIR/baselines/{regressor,affine_colour}/{pair_id}/{frame:04d}.exr; OUTDIR/{pair_id}.json
+(the pair's manifest entry, written when its outputs are); OUTDIR/manifest.json last.
+
+Resume: a pair whose OUTDIR/{pair_id}.json names the same model file (size, mtime) and inference
+settings is not refined again, so a killed or timed-out job continues at the next pair. The model
+runs on the device of the config's ``device`` policy (CUDA for the paper preset).
 """
 
 import argparse
@@ -36,13 +41,35 @@ def autoencoder_round_trip_psnr_db(model, video, pad_mode: str) -> float:
 
     padded, n = pad_to_4k1(video[None], pad_mode)
     with torch.no_grad():
-        rt = model.ae.decode(model.ae.encode(padded))[0, :, :n].clamp(-1, 1)
+        rt = model.ae.decode(model.ae.encode(padded.to(model.device)))[0, :, :n].clamp(-1, 1).cpu()
     return video_psnr_db(to_display_frames(rt), to_display_frames(video))
 
 
 def write_frames(folder: Path, disp, exposure_ev: float) -> None:
     for f, frame in enumerate(disp):
         write_frame_exr(folder / f"{f:04d}.exr", display_to_linear(frame, exposure_ev))
+
+
+def resume_stamp(model_path, cfg: dict) -> str:
+    """What a pair's outputs depend on besides the pair: the model file and the inference settings."""
+    import hashlib
+
+    st = Path(model_path).stat()
+    blob = json.dumps([st.st_size, st.st_mtime_ns, cfg["infer"], cfg["seed"]], sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def read_done(path: Path, stamp: str) -> dict | None:
+    """The manifest entry of a pair refined by an earlier run with the same stamp, else None."""
+    if not path.is_file():
+        return None
+    try:
+        entry = json.loads(path.read_text())
+    except ValueError:
+        return None
+    if entry.pop("resume_stamp", None) != stamp or not Path(entry.get("frames", "")).is_dir():
+        return None
+    return entry
 
 
 def main() -> int:
@@ -64,9 +91,15 @@ def main() -> int:
     out = Path(a.out)
     ev, pad = cfg["data"]["exposure_ev"], cfg["infer"]["pad_frames"]
     entries = []
+    stamp = resume_stamp(a.model, cfg)
     for i in range(len(ds)):
+        pid = ds.pair_ids[i] if hasattr(ds, "pair_ids") else ds[i]["pair_id"]
+        done = read_done(out / f"{pid}.json", stamp)
+        if done is not None:
+            entries.append(done)
+            print(f"infer_refiner: {pid}: already refined (resumed)", flush=True)
+            continue
         item = ds[i]
-        pid = item["pair_id"]
         gen = torch.Generator().manual_seed(cfg["seed"])
         t0 = time.perf_counter()
         refined = refine_video(model, item["proxy"][None], cfg, generator=gen)[0]  # (3, N, H, W) in [-1, 1]
@@ -96,6 +129,7 @@ def main() -> int:
             ("proxy", to_display_frames(item["proxy"])), ("refined", disp), ("target", to_display_frames(item["target"]))]
         entry["strip"] = str(write_strip(out / f"{pid}_strip.png", columns))
         entry["strip_columns"] = [c[0] for c in columns]
+        write_json(out / f"{pid}.json", {**entry, "resume_stamp": stamp})
         entries.append(entry)
         print(f"infer_refiner: {pid}: {len(disp)} frames in {sec:.1f} s", flush=True)
     write_json(out / "manifest.json", {"model": a.model, "split": a.split, "infer": cfg["infer"],

@@ -34,8 +34,13 @@ def main() -> int:
     if a.threads:
         torch.set_num_threads(a.threads)
     cfg = resolve_config(_cli.json_arg(a.config_json))
+    from lightcrafter.devices import resolve_device
+
+    resolve_device(cfg["device"], "refiner.device")  # a GPU job on a node without one stops here, at once
     Path(a.out).mkdir(parents=True, exist_ok=True)
     res = fit_refiner(cfg, a.pairs, a.out, log=_logger(Path(a.out)))
+    if "rank" in res:  # a non-zero rank of data-parallel training: rank 0 writes the outputs
+        return 0
     write_json(Path(a.out) / "selection.json", res)
     tr, chosen = res["train"], res["selection"]["chosen"]
     print(f"train_refiner: {tr['steps']} steps ({tr['seconds_per_step']:.3f} s/optimizer step); "

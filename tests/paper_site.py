@@ -12,6 +12,7 @@ read is the listing.
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 
 import yaml
@@ -122,6 +123,13 @@ def make_site(root: Path, dl3dv_scenes: int = 1200, mit_scenes: int = 10, conten
     for sub in ("transformer", "vae", "text_encoder", "tokenizer", "scheduler"):
         (model / sub).mkdir(parents=True, exist_ok=True)
     (model / "model_index.json").write_text('{"_class_name": "CogVideoXImageToVideoPipeline"}')
+    # the released configs' fields the start-up check reads (no weights: nothing here loads them)
+    from lightcrafter.refiner.standin import COGVIDEOX_5B_I2V_TRANSFORMER
+
+    (model / "transformer" / "config.json").write_text(json.dumps(
+        {"_class_name": "CogVideoXTransformer3DModel", **COGVIDEOX_5B_I2V_TRANSFORMER}))
+    (model / "vae" / "config.json").write_text('{"_class_name": "AutoencoderKLCogVideoX", "latent_channels": 16}')
+    (model / "tokenizer" / "spiece.model").write_bytes(b"")
     tools = root / "site"
     tools.mkdir(exist_ok=True)
     for tool in ("megasam", "diffusion_renderer", "diffusion_light"):

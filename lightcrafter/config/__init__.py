@@ -224,7 +224,6 @@ def check_paper_stack_commands(commands: dict, source: str = "config") -> None:
 
 
 # ----------------------------------------------------------------------------- start-up checks (disk)
-MODEL_SUBFOLDERS = ("transformer", "vae", "text_encoder", "tokenizer", "scheduler")
 
 
 def _has_file(folder: Path, suffixes: tuple[str, ...], max_entries: int = 100000) -> bool:
@@ -284,12 +283,17 @@ def check_startup(config: dict, source: str = "config") -> None:
         if not root.is_dir():
             raise ConfigError(f"{source}: key 'refiner.model.model_path': folder {root} not found; point it at a "
                               "local CogVideoX-5B-I2V diffusers folder (nothing is downloaded)")
-        missing = [d for d in MODEL_SUBFOLDERS if not (root / d).is_dir()]
-        if missing or not (root / "model_index.json").is_file():
-            what = missing + ([] if (root / "model_index.json").is_file() else ["model_index.json"])
-            raise ConfigError(f"{source}: key 'refiner.model.model_path': {root} lacks {what}; it must be the "
-                              f"diffusers folder of CogVideoX-5B-I2V ({'/ '.join(MODEL_SUBFOLDERS)}/ and "
-                              "model_index.json)")
+        from ..refiner.checkpoint import CheckpointError, check_sizes, check_tokenizer, read_servable
+
+        try:
+            servable = read_servable(root)
+            check_tokenizer(root)
+            r = config["refiner"]
+            check_sizes(servable, width_px=s["width"], height_px=s["height"], train_window=r["train"]["latent_window"],
+                        infer_window=r["infer"]["window"], where=f"{source}: key 'refiner.model.model_path'")
+        except CheckpointError as exc:
+            msg = str(exc)
+            raise ConfigError(msg if msg.startswith(source) else f"{source}: key 'refiner.model.model_path': {msg}") from None
 
 
 def check_config(config: dict, source: str = "config") -> dict:

@@ -429,6 +429,9 @@ class Datasets(Section):
 
 class Resources(Section):
     threads: PositiveInt = Field(8, description="threads of the refiner rules (passed to torch)")
+    gpus: PositiveInt = Field(1, description="GPUs of train_refiner: above 1 it runs under `accelerate launch "
+                              "--multi_gpu --num_processes N` (data parallel, one process per GPU); the SLURM profile's "
+                              "gpu resource of train_refiner must match")
     mem_mb: int = Field(128000, ge=100, description="memory of the refiner rules (MB)")
     runtime: PositiveInt = Field(2880, description="time limit of the refiner rules (minutes)")
 

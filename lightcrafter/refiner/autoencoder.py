@@ -184,10 +184,10 @@ class CogVideoXVAE(nn.Module):
     @torch.no_grad()
     def encode(self, video: torch.Tensor) -> torch.Tensor:
         check_frames(video.shape[2])
-        lat = self.vae.encode(video.to(self.vae.dtype)).latent_dist.mode()
+        lat = self.vae.encode(video.to(self.vae.device, self.vae.dtype)).latent_dist.mode()
         return (lat * self.scaling).permute(0, 2, 1, 3, 4).contiguous()
 
     @torch.no_grad()
     def decode(self, lat: torch.Tensor) -> torch.Tensor:
-        lat = lat.permute(0, 2, 1, 3, 4).to(self.vae.dtype) / self.scaling
+        lat = lat.permute(0, 2, 1, 3, 4).to(self.vae.device, self.vae.dtype) / self.scaling
         return self.vae.decode(lat).sample.float()

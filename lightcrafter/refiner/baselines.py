@@ -50,8 +50,8 @@ def regress_video(model, proxy_video: torch.Tensor, pad_mode: str = "error") -> 
     from .training import regression_x0
 
     video, n = pad_to_4k1(proxy_video, pad_mode)
-    x0 = regression_x0(model, model.ae.encode(video))
-    return model.ae.decode(x0)[:, :, :n].clamp(-1, 1)
+    x0 = regression_x0(model, model.ae.encode(video.to(model.device)))
+    return model.ae.decode(x0)[:, :, :n].clamp(-1, 1).cpu()
 
 
 def load_regressor(model_path):
@@ -62,10 +62,12 @@ def load_regressor(model_path):
     reg = (st.get("baselines") or {}).get("regressor")
     if not reg:
         return None
+    from lightcrafter.devices import resolve_device
+
     model = Refiner(st["config"])
     model.load_weights(reg)
     model.ae.load_state_dict(reg["ae"])
-    return model.eval()
+    return model.to(resolve_device(st["config"]["device"], "refiner.device")).eval()
 
 
 def load_affine_colour(model_path) -> dict | None:

@@ -220,6 +220,10 @@ class RefinerSettings(_Section):
         "paper: CogVideoX-5B-I2V from model.model_path (bf16, gradient checkpointing, VAE slicing/tiling), "
         "pure-noise sampling, no anchor, no selection, no baselines. Base values the rest of the section overrides")
     seed: NonNegativeInt = Field(0, description="integer seed of every random draw in training and inference")
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        "auto", description="where training, inference and the baselines run (lightcrafter/devices.py): cpu | cuda "
+        "(a one-line error when torch sees no GPU: never a silent CPU fallback) | auto (CUDA when present; an error "
+        "when the job was given a GPU torch cannot see). tiny: cpu; paper: cuda")
     model: RefinerModelSettings = Field(default_factory=RefinerModelSettings)
     scheduler: dict = Field(default_factory=lambda: copy.deepcopy(COGVIDEOX_5B_SCHEDULER),
                             description="diffusers CogVideoX scheduler kwargs (defaults: CogVideoX-5B's "
@@ -250,8 +254,9 @@ TINY_SMALL_SCALE: dict = {
 }
 
 PRESETS: dict[str, dict] = {
-    "tiny": copy.deepcopy(TINY_SMALL_SCALE),
+    "tiny": {"device": "cpu", **copy.deepcopy(TINY_SMALL_SCALE)},
     "paper": {
+        "device": "cuda",
         "model": {
             "kind": "paper",
             "dtype": "bfloat16",

@@ -38,3 +38,14 @@ def pad_to_4k1(video: torch.Tensor, mode: str = "error") -> tuple[torch.Tensor, 
     target = 4 * ((n - 1) // 4 + 1) + 1
     pad = video[:, :, -1:].expand(-1, -1, target - n, -1, -1)
     return torch.cat([video, pad], dim=2), n
+
+
+def pad_to_latent_frames(video: torch.Tensor, min_latent: int | None) -> tuple[torch.Tensor, int]:
+    """Repeat the last frame of a (B, C, N, H, W) 4k+1-frame video up to ``4 (min_latent - 1) + 1``
+    frames (a transformer with learned positional embeddings sees whole windows only); return it and
+    the original N. ``None`` or a long enough video: unchanged."""
+    n = video.shape[2]
+    need = 4 * (int(min_latent) - 1) + 1 if min_latent else 0
+    if n >= need:
+        return video, n
+    return torch.cat([video, video[:, :, -1:].expand(-1, -1, need - n, -1, -1)], dim=2), n

@@ -79,8 +79,16 @@ def empty_prompt_embedding(cfg: dict, max_len: int, dim: int) -> torch.Tensor:
                 "or a precomputed file in model.empty_prompt_cache"
             ) from exc
 
+        from .checkpoint import CheckpointError, check_tokenizer
+
         root = require_model_path(cfg)
-        tok = AutoTokenizer.from_pretrained(root / "tokenizer")
+        check_tokenizer(root)
+        try:
+            tok = AutoTokenizer.from_pretrained(root / "tokenizer")
+        except Exception as exc:  # transformers raises many types for a broken tokenizer folder
+            raise CheckpointError(f"{root / 'tokenizer'}: the T5 tokenizer does not load ({type(exc).__name__}: "
+                                  f"{str(exc).splitlines()[0] if str(exc) else ''}); re-copy the model's "
+                                  "tokenizer/ folder") from None
         enc = T5EncoderModel.from_pretrained(root / "text_encoder", torch_dtype=torch.float32)
         ids = tok([""], padding="max_length", max_length=max_len, truncation=True, return_tensors="pt")
         with torch.no_grad():
@@ -119,20 +127,23 @@ def grid_crop_region(grid_hw: tuple[int, int], base_w: int, base_h: int):
     return (top, left), (top + rh, left + rw)
 
 
-def build_transformer(cfg: dict, latent_channels: int):
+def build_transformer(cfg: dict, latent_channels: int, param_dtype: torch.dtype | None = None):
+    """The transformer with parameters in ``param_dtype`` (default ``model.dtype``; training passes
+    float32: the fp32 master weights of bf16 mixed precision, see :class:`Refiner`)."""
     from diffusers import CogVideoXTransformer3DModel
 
     m = cfg["model"]
+    param_dtype = param_dtype or _dtype(m["dtype"])
     if m["kind"] == "tiny":
         kwargs = dict(m["transformer"])
         kwargs.update(in_channels=2 * latent_channels, out_channels=latent_channels)
-        net = CogVideoXTransformer3DModel(**kwargs)
+        net = CogVideoXTransformer3DModel(**kwargs).to(param_dtype)
     elif m["kind"] == "paper":
-        net = CogVideoXTransformer3DModel.from_pretrained(
-            require_model_path(cfg), subfolder="transformer", torch_dtype=_dtype(m["dtype"])
-        )
-        if net.config.in_channels != 2 * latent_channels:
-            raise ValueError(f"transformer in_channels={net.config.in_channels}, expected {2 * latent_channels}")
+        from .checkpoint import read_servable
+
+        root = require_model_path(cfg)
+        read_servable(root)  # layout and in_channels: one line naming the file, before loading GBs
+        net = CogVideoXTransformer3DModel.from_pretrained(root, subfolder="transformer", torch_dtype=param_dtype)
     else:
         raise ValueError(f"model.kind={m['kind']!r}: use 'tiny' or 'paper'")
     if m.get("gradient_checkpointing"):
@@ -148,15 +159,31 @@ def build_autoencoder(cfg: dict):
 
 
 class Refiner(nn.Module):
-    """Frozen autoencoder + trainable transformer + cached empty-prompt embedding."""
+    """Frozen autoencoder + trainable transformer + cached empty-prompt embedding.
 
-    def __init__(self, cfg: dict):
+    Precision: ``model.dtype`` is the *compute* dtype. ``training=True`` keeps the transformer's
+    parameters in float32 -- the master weights AdamW updates -- and runs its forward pass under
+    ``torch.autocast`` in ``model.dtype`` (bf16 mixed precision as the reference trainers do it: a
+    1e-5 step on bf16 parameters rounds away for most weights, as |w| ~ 0.02 has a bf16 spacing of
+    ~1.2e-4). Memory: 16 bytes per trainable parameter (fp32 weight, gradient, two AdamW moments),
+    ~80 GB for CogVideoX-5B plus activations. Inference (``training=False``) loads the parameters in
+    ``model.dtype``. The autoencoder is frozen and kept in ``model.dtype``.
+    """
+
+    def __init__(self, cfg: dict, training: bool = False):
         super().__init__()
         self.cfg = cfg
+        self.compute_dtype = _dtype(cfg["model"]["dtype"])
+        self.param_dtype = torch.float32 if training else self.compute_dtype
         self.ae = build_autoencoder(cfg)
         self.ae.requires_grad_(False)
-        self.transformer = build_transformer(cfg, self.ae.latent_channels)
-        tc = self.transformer.config
+        self.transformer = build_transformer(cfg, self.ae.latent_channels, self.param_dtype)
+        tc = self.tcfg = self.transformer.config  # read here: a DDP-wrapped transformer has no .config
+        # learned positional embeddings (CogVideoX-5B-I2V) serve one latent size and window only
+        self.fixed_latent_hw = ((tc.sample_height, tc.sample_width)
+                                if getattr(tc, "use_learned_positional_embeddings", False) else None)
+        self.fixed_window = ((tc.sample_frames - 1) // tc.temporal_compression_ratio + 1
+                             if self.fixed_latent_hw else None)
         self.register_buffer(
             "prompt_embeds", empty_prompt_embedding(cfg, tc.max_text_seq_length, tc.text_embed_dim), persistent=False
         )
@@ -178,8 +205,12 @@ class Refiner(nn.Module):
     def latent_channels(self) -> int:
         return self.ae.latent_channels
 
+    @property
+    def device(self) -> torch.device:
+        return self.alphas_cumprod.device
+
     def _rotary(self, frames: int, h: int, w: int, device):
-        tc = self.transformer.config
+        tc = self.tcfg
         if not tc.use_rotary_positional_embeddings:
             return None
         from diffusers.models.embeddings import get_3d_rotary_pos_embed
@@ -236,16 +267,23 @@ class Refiner(nn.Module):
         scale = float(residual_scale) if self.proxy_anchor != "none" else 1.0
         if scale == 0.0:  # the anchor alone: the transformer's correction is not computed
             return self._anchor_v(noisy, proxy if anchor is None else anchor, timestep, 0.0)
-        dtype = self.transformer.dtype
-        x = torch.cat([noisy, proxy], dim=2).to(dtype)
-        emb = self.prompt_embeds.to(dtype).expand(b, -1, -1)
-        out = self.transformer(
-            hidden_states=x,
-            encoder_hidden_states=emb,
-            timestep=timestep,
-            image_rotary_emb=self._rotary(f, h, w, x.device),
-            return_dict=False,
-        )[0].float()
+        if self.fixed_latent_hw and ((h, w) != self.fixed_latent_hw or f != self.fixed_window):
+            raise ValueError(
+                f"latent window {f}x{h}x{w} (frames x h x w): the transformer's learned positional embeddings serve "
+                f"{self.fixed_window}x{self.fixed_latent_hw[0]}x{self.fixed_latent_hw[1]} only (see "
+                "lightcrafter/refiner/checkpoint.py)")
+        x = torch.cat([noisy, proxy], dim=2).to(self.param_dtype)
+        emb = self.prompt_embeds.to(self.param_dtype).expand(b, -1, -1)
+        with torch.autocast(device_type=x.device.type, dtype=self.compute_dtype,
+                            enabled=self.compute_dtype != self.param_dtype):
+            out = self.transformer(
+                hidden_states=x,
+                encoder_hidden_states=emb,
+                timestep=timestep,
+                image_rotary_emb=self._rotary(f, h, w, x.device),
+                return_dict=False,
+            )[0]
+        out = out.float()
         if self.proxy_anchor == "none":
             return out
         return self._anchor_v(noisy, proxy if anchor is None else anchor, timestep, scale * out)

@@ -120,18 +120,21 @@ def sample_latent(
 @torch.no_grad()
 def refine_video(model, proxy_video: torch.Tensor, cfg: dict, generator=None, num_samples: int | None = None,
                  **kw) -> torch.Tensor:
-    """(B, 3, N, H, W) proxy in [-1, 1] -> refined video in [-1, 1], same N (padding per config).
+    """(B, 3, N, H, W) proxy in [-1, 1] -> refined video in [-1, 1] on the CPU, same N (padding per
+    config; a clip shorter than a fixed window is repeated to it). Runs on the model's device.
 
     ``num_samples`` (default ``infer.num_samples``): the output is the mean of that many decoded
     samples, drawn one after the other with ``generator`` (pixel space, so any autoencoder works).
     """
-    from .frames import pad_to_4k1
+    from .frames import pad_to_4k1, pad_to_latent_frames
 
     k = int(cfg["infer"].get("num_samples", 1) if num_samples is None else num_samples)
     video, n = pad_to_4k1(proxy_video, cfg["infer"]["pad_frames"])
-    zp = model.ae.encode(video)
+    video, _ = pad_to_latent_frames(video, getattr(model, "fixed_window", None))  # short clips: repeat to the window
+    dev = getattr(model, "device", video.device)
+    zp = model.ae.encode(video.to(dev))
     acc = None
     for _ in range(k):
         out = model.ae.decode(sample_latent(model, zp, cfg, generator=generator, **kw))[:, :, :n]
         acc = out if acc is None else acc + out
-    return (acc / k).clamp(-1, 1)
+    return (acc / k).clamp(-1, 1).cpu()

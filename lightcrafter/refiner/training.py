@@ -11,11 +11,22 @@ Windows: each sample is a ``train.latent_window``-frame crop at a random offset 
 encoded clip, so (like tiled inference) most windows start with a 4-frame latent rather than the
 causal 1-frame first latent.
 
-Devices: on the CPU (tiny) everything is float32; with a GPU and ``model.dtype: bfloat16`` accelerate
-runs bf16 mixed precision. All random draws stay on the CPU generator, then move to the device.
+Devices (``device``, lightcrafter/devices.py): the CPU for the tiny preset, CUDA for the paper
+preset (an error, not a fallback, when there is none). All random draws stay on the CPU generator,
+then move to the device.
 
-Latent caching: target latents are cached in memory (exact: the encoder is deterministic); proxy
-latents are recomputed each step because the conditioning noise is added in pixel space.
+Precision: with ``model.dtype: bfloat16`` the transformer keeps float32 master weights and computes
+in bf16 under autocast (:class:`Refiner`, ``training=True``); the optimizer steps the fp32 weights.
+
+Several GPUs (``accelerate launch --num_processes N``, the workflow does it for ``resources.gpus``
+> 1): data parallel; rank r draws from its own generator seeded ``seed + r`` (rank 0: ``seed``,
+so one process reproduces the single-GPU run), keeps its generator state in
+``checkpoints/step_X.rank{r}.pt``; rank 0 writes checkpoints, snapshots and the model.
+
+Latent caching: target latents are cached in CPU memory (exact: the encoder is deterministic; ~8.7
+GB of GPU memory at paper scale otherwise); proxy latents are recomputed each step because the
+conditioning noise is added in pixel space. Clips shorter than a fixed window (learned positional
+embeddings) are repeated to it (last frame) before encoding.
 
 Augmentation: with ``train.hflip`` each sample is mirrored left-right with probability 1/2 (pixel
 space, before encoding; the coin is drawn only when the key is on, so other runs keep their draws).
@@ -109,15 +120,16 @@ def snapshot_path(out_dir: Path, step: int) -> Path:
 
 
 class TargetLatentCache:
-    """Exact in-memory cache of full-clip target latents, keyed by pair id."""
+    """Exact cache of full-clip target latents in CPU memory, keyed by pair id; ``get`` returns them
+    on ``device``."""
 
-    def __init__(self, ae):
-        self.ae, self.store = ae, {}
+    def __init__(self, ae, device=None):
+        self.ae, self.store, self.device = ae, {}, device
 
     def get(self, pair_id: str, video: torch.Tensor) -> torch.Tensor:
         if pair_id not in self.store:
-            self.store[pair_id] = self.ae.encode(video[None])
-        return self.store[pair_id]
+            self.store[pair_id] = self.ae.encode(video[None].to(self.device or video.device)).cpu()
+        return self.store[pair_id].to(self.device or video.device)
 
 
 # Keys that may change between a killed run and its resumption without invalidating it.
@@ -172,8 +184,11 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     if len(dataset) == 0:
         raise ValueError("training set is empty (no pairs with split == 'train')")
 
+    from lightcrafter.devices import resolve_device
+
+    device = resolve_device(cfg["device"], "refiner.device")  # a missing GPU fails before any loading
     torch.manual_seed(cfg["seed"])
-    model = Refiner(cfg)
+    model = Refiner(cfg, training=True)
     if cfg["model"]["kind"] == "tiny":
         n_fit = min(len(dataset), 8)
         model.ae.fit_normalisation(dataset[i]["target"][None] for i in range(n_fit))
@@ -185,7 +200,9 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     opt = torch.optim.AdamW(groups, lr=tr["lr"], betas=tuple(tr["adam_betas"]), weight_decay=tr["weight_decay"])
     warm = max(int(tr["warmup_steps"]), 0)
     lr_sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: min(1.0, (s + 1) / warm) if warm else 1.0)
-    gen = torch.Generator().manual_seed(cfg["seed"])
+    acc = Accelerator(gradient_accumulation_steps=tr["grad_accum"], cpu=device.type == "cpu", mixed_precision="no")
+    rank, main = acc.process_index, acc.is_main_process
+    gen = torch.Generator().manual_seed(cfg["seed"] + rank)
     step, losses = 0, []
 
     fingerprint = run_fingerprint(cfg, dataset, objective)
@@ -193,32 +210,31 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     st = torch.load(ckpt, map_location="cpu", weights_only=False) if ckpt is not None else None
     if st is not None and st.get("fingerprint") != fingerprint:
         log.info("checkpoint %s belongs to another config or data set; training from scratch", ckpt.name)
-        for old in [*(out_dir / CKPT_DIR).glob("*"), *(out_dir / CANDIDATES).glob("*")]:
-            old.unlink()
         st = None
-    if st is not None and st["step"] > tr["max_steps"]:
+        stale = [*(out_dir / CKPT_DIR).glob("*"), *(out_dir / CANDIDATES).glob("*")]
+    elif st is not None and st["step"] > tr["max_steps"]:
         log.info("checkpoint %s is past train.max_steps=%d; training from scratch", ckpt.name, tr["max_steps"])
-        for old in (out_dir / CKPT_DIR).glob("*"):
-            old.unlink()
         st = None
-    if st is None:  # snapshots of an earlier (killed or finished) run with other settings are stale
-        for old in (out_dir / CANDIDATES).glob("*"):
-            old.unlink()
+        stale = [*(out_dir / CKPT_DIR).glob("*"), *(out_dir / CANDIDATES).glob("*")]
+    else:  # snapshots of an earlier (killed or finished) run with other settings are stale
+        stale = list((out_dir / CANDIDATES).glob("*")) if st is None else []
+    acc.wait_for_everyone()  # every rank has read the checkpoint before rank 0 removes anything
+    if main:
+        for old in stale:
+            old.unlink(missing_ok=True)
     if st is not None:
         model.load_weights(st)
         model.ae.load_state_dict(st["ae"])
         opt.load_state_dict(st["optimizer"])
         lr_sched.load_state_dict(st["lr_scheduler"])
-        gen.set_state(st["generator"])
+        rank_file = ckpt.with_suffix(f".rank{rank}.pt")
+        gen.set_state(st["generator"] if rank == 0 else torch.load(rank_file, weights_only=False)["generator"])
         torch.set_rng_state(st["torch_rng"])
         np.random.set_state(st["numpy_rng"])
         random.setstate(st["python_rng"])
         step, losses = st["step"], list(st["losses"])
         log.info("resumed from %s at step %d", ckpt.name, step)
 
-    use_gpu = torch.cuda.is_available() and cfg["model"]["kind"] == "paper"
-    acc = Accelerator(gradient_accumulation_steps=tr["grad_accum"], cpu=not use_gpu,
-                      mixed_precision="bf16" if use_gpu and cfg["model"]["dtype"] == "bfloat16" else "no")
     dev = acc.device
     model.to(dev)
     model.transformer, opt, lr_sched = acc.prepare(model.transformer, opt, lr_sched)
@@ -227,10 +243,18 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     t_lo, t_hi = train_timestep_range(cfg)
     full_range = (t_lo, t_hi) == (0, sched.config.num_train_timesteps - 1)
     snapshot_steps = {int(s) for s in snapshot_steps}
-    cache = TargetLatentCache(model.ae)
+    cache = TargetLatentCache(model.ae, dev)
+    from .frames import pad_to_latent_frames
     model.transformer.train()
 
     def checkpoint():
+        name = f"step_{step:07d}.pt"
+        acc.wait_for_everyone()
+        if rank > 0:  # only this rank's generator; rank 0 writes the rest
+            save_checkpoint(out_dir / CKPT_DIR / f"step_{step:07d}.rank{rank}.pt", {"generator": gen.get_state()})
+        acc.wait_for_everyone()
+        if not main:
+            return
         state = {
             **model.weights(acc.unwrap_model(model.transformer)),
             "ae": model.ae.state_dict(),
@@ -245,15 +269,16 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
             "config": cfg,
             "fingerprint": fingerprint,
         }
-        name = f"step_{step:07d}.pt"
         save_checkpoint(out_dir / CKPT_DIR / name, state)
         write_text(out_dir / CKPT_DIR / LATEST, name + "\n")
-        for old in sorted((out_dir / CKPT_DIR).glob("step_*.pt"))[:-2]:  # keep the last two
-            old.unlink()
+        keep = {p.name.split(".")[0] for p in sorted((out_dir / CKPT_DIR).glob("step_???????.pt"))[-2:]}
+        for old in (out_dir / CKPT_DIR).glob("step_*.pt"):  # keep the last two (and their rank files)
+            if old.name.split(".")[0] not in keep:
+                old.unlink()
 
     from tqdm import tqdm
 
-    bar = tqdm(total=tr["max_steps"], initial=step, desc="refiner", disable=not progress, file=sys.stderr)
+    bar = tqdm(total=tr["max_steps"], initial=step, desc="refiner", disable=not (progress and main), file=sys.stderr)
     done_here, t_start = 0, time.perf_counter()
     window = int(tr["latent_window"])
     while step < tr["max_steps"] and (stop_after is None or done_here < stop_after):
@@ -264,6 +289,9 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
                 flip = bool(tr["hflip"]) and bool(torch.rand((), generator=gen) < 0.5)
                 if flip:  # mirror proxy and target alike (a mirrored scene is a valid scene)
                     item = {**item, "proxy": item["proxy"].flip(-1), "target": item["target"].flip(-1)}
+                if model.fixed_window:  # repeat a short clip to the window the embeddings serve
+                    item = {**item, **{k: pad_to_latent_frames(item[k][None], model.fixed_window)[0][0]
+                                       for k in ("proxy", "target")}}
                 tgt = cache.get(item["pair_id"] + ("#flip" if flip else ""), item["target"].to(dev))
                 f = tgt.shape[1]
                 s = int(torch.randint(max(f - window, 0) + 1, (1,), generator=gen))
@@ -295,14 +323,15 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         bar.set_postfix(loss=f"{losses[-1]:.4f}")
         if step % tr["log_every"] == 0:
             log.info("step %d loss %.6f lr %.3g", step, losses[-1], lr_sched.get_last_lr()[0])
-        if step in snapshot_steps:
+        if step in snapshot_steps and main:
             save_checkpoint(snapshot_path(out_dir, step), {**model.weights(acc.unwrap_model(model.transformer)),
                                                            "step": step, "fingerprint": fingerprint})
         if step % tr["checkpoint_every"] == 0 or step == tr["max_steps"] or done_here == stop_after:
             checkpoint()
     bar.close()
     sec = (time.perf_counter() - t_start) / max(done_here, 1)
-    if step >= tr["max_steps"]:
+    acc.wait_for_everyone()
+    if step >= tr["max_steps"] and main:
         save_model(out_dir / final_name, model.weights(acc.unwrap_model(model.transformer)), model.ae, cfg)
         with atomic_path(out_dir / "loss_curve.json") as tmp:
             tmp.write_text(json.dumps({"loss_per_optimizer_step": losses, "seconds_per_optimizer_step": sec}))
@@ -318,13 +347,14 @@ def save_model(path: Path, weights: dict, ae, cfg: dict) -> None:
 SELECTED_INFER_KEYS = ("strength", "guidance_scale", "residual_scale")
 
 
-def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = True) -> Refiner:
+def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = True, device=None) -> Refiner:
     """Rebuild a trained :class:`Refiner` from ``model.pt`` (its stored config, optionally overridden).
 
     When the file records a validation selection (``selection.chosen``), the chosen ``infer.strength``
     and ``infer.guidance_scale`` are applied after the overrides (``apply_selection=False`` keeps the
     overrides), so a workflow that passes its ``infer`` section still runs what validation picked.
-    The selection record is available as ``model.selection`` (None if there was none).
+    The selection record is available as ``model.selection`` (None if there was none). The model is
+    on ``device`` (default: the config's ``device`` policy, lightcrafter/devices.py).
     """
     from .config import _merge, resolve_config
 
@@ -335,8 +365,11 @@ def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = 
     chosen = (st.get("selection") or {}).get("chosen")
     if apply_selection and chosen:
         cfg = resolve_config(_merge(cfg, {"infer": {k: chosen[k] for k in SELECTED_INFER_KEYS if k in chosen}}))
+    from lightcrafter.devices import resolve_device
+
+    device = resolve_device(cfg["device"], "refiner.device") if device is None else torch.device(device)
     model = Refiner(cfg)
     model.load_weights(st)
     model.ae.load_state_dict(st["ae"])
     model.selection = st.get("selection")
-    return model.eval()
+    return model.to(device).eval()

@@ -1,0 +1,185 @@
+"""The paper preset's code paths on the CPU: device policy, fp32 master weights, the real checkpoint
+format (a tiny CogVideoX-I2V folder written on the spot), its bad-input errors, and the rehearsal."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from lightcrafter.refiner import resolve_config
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPTS = REPO / "scripts"
+
+
+@pytest.fixture(scope="module")
+def tiny_ckpt(tmp_path_factory):
+    from lightcrafter.refiner.standin import write_tiny_checkpoint
+
+    return write_tiny_checkpoint(tmp_path_factory.mktemp("ckpt") / "CogVideoX-tiny-I2V")
+
+
+# ----------------------------------------------------------------------------- devices
+def test_cuda_device_without_a_gpu_is_one_line_naming_the_key(monkeypatch):
+    from lightcrafter.devices import NoGPUError, resolve_device
+
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is present")
+    with pytest.raises(NoGPUError, match=r"refiner.device=cuda: .*sees no CUDA GPU.*set refiner.device: cpu"):
+        resolve_device("cuda", "refiner.device")
+    assert resolve_device("auto").type == "cpu"
+    monkeypatch.setenv("SLURM_GPUS_ON_NODE", "1")  # the profile gave the job a GPU torch cannot see
+    with pytest.raises(NoGPUError, match="given a GPU .SLURM_GPUS_ON_NODE=1"):
+        resolve_device("auto", "refiner.device")
+    assert resolve_device("cpu").type == "cpu"  # the tiny preset keeps running on the CPU
+
+
+def test_presets_pick_their_devices():
+    assert resolve_config({"preset": "tiny"})["device"] == "cpu"
+    assert resolve_config({"preset": "paper"})["device"] == "cuda"
+
+
+def test_training_script_with_the_paper_preset_and_no_gpu_fails_at_once(tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is present")
+    (tmp_path / "pairs.jsonl").write_text("")
+    cfg = {"preset": "paper", "model": {"model_path": str(tmp_path / "nowhere")}}
+    r = subprocess.run([sys.executable, SCRIPTS / "train_refiner.py", "--pairs", tmp_path / "pairs.jsonl",
+                        "--config-json", json.dumps(cfg), "--out", tmp_path / "m"], capture_output=True, text=True)
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "refiner.device=cuda" in r.stderr and "no CUDA GPU" in r.stderr
+
+
+# ----------------------------------------------------------------------------- precision
+def _changed_fraction(before: dict, after: dict) -> float:
+    n = sum(v.numel() for v in before.values())
+    return sum(int((after[k].float() != v.float()).sum()) for k, v in before.items()) / n
+
+
+def test_one_adamw_step_at_lr_1e5_changes_99_percent_of_a_bf16_models_weights(tmp_path):
+    """fp32 master weights: the step is kept. Stepping the bf16 parameters directly (the old path)
+    rounds most updates away -- the reason for the masters."""
+    from lightcrafter.refiner import Refiner, train
+    from lightcrafter.refiner.toy import ToyDataset
+    from lightcrafter.refiner.training import training_loss
+    from lightcrafter.refiner.schedule import build_scheduler
+
+    cfg = resolve_config({"model": {"ae_coeffs": [8, 4, 4], "dtype": "bfloat16", "proxy_anchor": "none",
+                                    "anchor_affine": False},
+                          "train": {"max_steps": 1, "lr": 1e-5, "warmup_steps": 0, "grad_accum": 1,
+                                    "timesteps": "all"}})
+    torch.manual_seed(cfg["seed"])
+    init = {k: v.clone() for k, v in Refiner(cfg, training=True).transformer.state_dict().items()}
+    train(cfg, ToyDataset(2), tmp_path, progress=False)
+    after = torch.load(tmp_path / "model.pt", weights_only=False)["transformer"]
+    assert after["proj_out.weight"].dtype == torch.float32
+    assert _changed_fraction(init, after) >= 0.99
+
+    torch.manual_seed(cfg["seed"])
+    naive = Refiner(cfg, training=False)  # parameters in bf16
+    assert naive.param_dtype == torch.bfloat16
+    before = {k: v.clone() for k, v in naive.transformer.state_dict().items()}
+    opt = torch.optim.AdamW(naive.transformer.parameters(), lr=1e-5)
+    item = ToyDataset(2)[0]
+    naive.ae.fit_normalisation([item["target"][None]])
+    zt, zp = naive.ae.encode(item["target"][None]), naive.ae.encode(item["proxy"][None])
+    g = torch.Generator().manual_seed(0)
+    training_loss(naive, build_scheduler(cfg, "ddim"), zt, zp, torch.tensor([500]),
+                  torch.randn(zt.shape, generator=g)).backward()
+    opt.step()
+    assert _changed_fraction(before, naive.transformer.state_dict()) < 0.5
+
+
+# ----------------------------------------------------------------------------- the real format
+def test_tiny_checkpoint_has_the_released_layout_and_loads_through_from_pretrained(tiny_ckpt):
+    from lightcrafter.refiner import Refiner
+    from lightcrafter.refiner.checkpoint import read_servable
+
+    for sub in ("transformer", "vae", "text_encoder", "tokenizer", "scheduler"):
+        assert (tiny_ckpt / sub).is_dir()
+    assert (tiny_ckpt / "tokenizer" / "spiece.model").is_file()
+    assert not (tiny_ckpt / "tokenizer" / "tokenizer.json").exists()  # as released: converted on load
+    s = read_servable(tiny_ckpt)
+    assert (s.in_channels, s.latent_channels, s.width_px, s.height_px, s.window_latent) == (32, 16, 48, 32, 13)
+    cfg = resolve_config({"preset": "paper", "device": "cpu", "model": {"model_path": str(tiny_ckpt)}})
+    m = Refiner(cfg)
+    assert m.fixed_window == 13 and m.fixed_latent_hw == (4, 6)
+    assert m.prompt_embeds.shape == (1, 226, 32) and m.prompt_embeds.abs().sum() > 0  # T5 of ""
+    z = torch.zeros(1, 12, 16, 4, 6)
+    with pytest.raises(ValueError, match=r"learned positional embeddings serve 13x4x6 only"):
+        m(z, z, torch.tensor([10]))  # diffusers would silently swap in sin-cos embeddings
+
+
+def _broken(tiny_ckpt, tmp_path, edit):
+    root = tmp_path / "broken"
+    shutil.copytree(tiny_ckpt, root)
+    edit(root)
+    return root
+
+
+def _startup_error(root, **over):
+    from lightcrafter.config import ConfigError, check_startup, validate
+
+    cfg = validate({"assets": {"source": "procedural"}, "recon": {"backend": "default"},
+                    "refiner": {"preset": "paper", "model": {"model_path": str(root)}},
+                    "scenes": {"width": over.get("width", 48), "height": 32}}, "site.yaml")
+    with pytest.raises(ConfigError) as e:
+        check_startup(cfg, "site.yaml")
+    assert "\n" not in str(e.value)
+    return str(e.value)
+
+
+def test_bad_model_folders_are_one_line_at_config_time(tiny_ckpt, tmp_path):
+    def drop_vae(r):
+        shutil.rmtree(r / "vae")
+
+    assert "lacks vae/" in _startup_error(_broken(tiny_ckpt, tmp_path / "a", drop_vae))
+
+    def t2v(r):
+        c = json.loads((r / "transformer" / "config.json").read_text())
+        (r / "transformer" / "config.json").write_text(json.dumps({**c, "in_channels": 16}))
+
+    msg = _startup_error(_broken(tiny_ckpt, tmp_path / "b", t2v))
+    assert "in_channels=16" in msg and "transformer/config.json" in msg and "I2V" in msg
+
+    def no_tokenizer(r):
+        (r / "tokenizer" / "spiece.model").unlink()
+
+    assert "neither spiece.model nor tokenizer.json" in _startup_error(_broken(tiny_ckpt, tmp_path / "c", no_tokenizer))
+    # the learned embeddings serve 48x32 and 13 latent frames only
+    msg = _startup_error(tiny_ckpt, width=64)
+    assert "serve 48x32 pixels only" in msg and "scenes.width: 48" in msg
+
+
+def test_a_tokenizer_that_cannot_load_is_one_line_naming_it(tiny_ckpt, tmp_path):
+    from lightcrafter.refiner import Refiner
+    from lightcrafter.refiner.checkpoint import CheckpointError
+
+    root = _broken(tiny_ckpt, tmp_path, lambda r: (r / "tokenizer" / "spiece.model").write_bytes(b"not a model"))
+    cfg = resolve_config({"preset": "paper", "device": "cpu", "model": {"model_path": str(root)}})
+    with pytest.raises(CheckpointError, match=r"tokenizer: the T5 tokenizer does not load"):
+        Refiner(cfg)
+
+
+@pytest.mark.slow
+def test_rehearsal_trains_resumes_and_refines_with_the_paper_preset(tmp_path):
+    """scripts/rehearse_refiner.py (the GPU check runs it with --device cuda)."""
+    r = subprocess.run([sys.executable, SCRIPTS / "rehearse_refiner.py", "--out", tmp_path, "--steps", "4"],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    rep = json.loads((tmp_path / "rehearsal.json").read_text())
+    tr = rep["train"]
+    assert tr["steps"] == 4 and tr["steps_before_kill"] == 2 and tr["resumed"]
+    assert tr["param_dtype"] == "torch.float32" and tr["fraction_of_weights_changed"] >= 0.99
+    inf = rep["infer"]
+    assert inf["pairs"] == {"t0": 61, "t1": 9}  # two fused windows; a short clip repeated to the window
+    assert (inf["sampler"], inf["guidance_scale"], inf["window"], inf["overlap"]) == ("dpm", 6.0, 13, 3)
+    assert inf["second_run_resumed"] == 2  # the rerun refined nothing
+    from lightcrafter.io import read_rgb_exr
+
+    frames = sorted((tmp_path / "refined" / "t0").glob("*.exr"))
+    assert len(frames) == 61 and all(torch.isfinite(torch.from_numpy(read_rgb_exr(f))).all() for f in frames[::10])
