@@ -129,6 +129,9 @@ class Layout:
     def refiner_dir(self, variant) -> str:
         return self._p("refiner", variant)
 
+    def empty_prompt(self) -> str:
+        return self._p("refiner", "empty_prompt.pt")
+
     def refiner_model(self, variant) -> str:
         return self._p("refiner", variant, "model.pt")
 

@@ -329,8 +329,27 @@ def mit_pair(wildcards):
 
 
 def refiner_model_config():
-    """The refiner config the scripts get (the workflow-only 'resources' key removed)."""
-    return {k: v for k, v in config["refiner"].items() if k != "resources"}
+    """The refiner config the scripts get (the workflow-only 'resources' key removed). A checkpoint's
+    empty-prompt embedding is read from the file rule encode_empty_prompt writes, unless the config
+    names one (model.empty_prompt_cache)."""
+    cfg = {k: v for k, v in config["refiner"].items() if k != "resources"}
+    if cfg["model"]["kind"] == "paper" and not cfg["model"]["empty_prompt_cache"]:
+        cfg = dict(cfg, model=dict(cfg["model"], empty_prompt_cache=L.empty_prompt()))
+    return cfg
+
+
+def refiner_prompt_input():
+    """The empty-prompt embedding the refiner rules need (paper model without a configured file), or []."""
+    m = config["refiner"]["model"]
+    return [L.empty_prompt()] if m["kind"] == "paper" and not m["empty_prompt_cache"] else []
+
+
+def refiner_launcher():
+    """How train_refiner starts: python, or accelerate launch with one process per GPU (resources.gpus)."""
+    n = refiner_resource("gpus")
+    if n == 1:
+        return "python"
+    return f"accelerate launch --multi_gpu --num_machines 1 --num_processes {n} --mixed_precision no"
 
 
 def refiner_config_file(wildcards):
@@ -344,7 +363,7 @@ def refiner_config_file(wildcards):
 
 def refiner_infer_file(wildcards):
     """Inference overrides applied on top of the config stored with the trained model."""
-    return params_file({"infer": config["refiner"]["infer"]})
+    return params_file({"infer": config["refiner"]["infer"], "device": config["refiner"]["device"]})
 
 
 def refiner_resource(key):

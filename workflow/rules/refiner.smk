@@ -3,9 +3,28 @@
 # lightcrafter/refiner/config.py) plus "resources" {threads, mem_mb, runtime} for these rules.
 
 
+rule encode_empty_prompt:
+    output:
+        emb=L.empty_prompt(),
+    log:
+        "logs/refiner/encode_empty_prompt.log",
+    conda:
+        "../../envs/refiner.yaml"
+    threads: refiner_threads()
+    resources:
+        mem_mb=48000,
+        runtime=60,
+    params:
+        script=script_path("encode_empty_prompt.py"),
+        cfg=lambda wildcards: params_file(refiner_model_config()),
+    shell:
+        "python {params.script} --config-json {params.cfg} --out {output.emb} > {log} 2>&1"
+
+
 rule train_refiner:
     input:
         pairs=L.pairs("{variant}"),
+        prompt=refiner_prompt_input(),
     output:
         model=L.refiner_model("{variant}"),
     log:
@@ -22,8 +41,9 @@ rule train_refiner:
         script=script_path("train_refiner.py"),
         cfg=refiner_config_file,
         out_dir=parent_dir,
+        launcher=refiner_launcher(),
     shell:
-        "python {params.script} --pairs {input.pairs} "
+        "{params.launcher} {params.script} --pairs {input.pairs} "
         "--config-json {params.cfg} --out {params.out_dir} --threads {threads} > {log} 2>&1"
 
 
@@ -31,6 +51,7 @@ rule infer_refiner:
     input:
         model=L.refiner_model("{variant}"),
         pairs=L.benchmark_pairs("{bench}"),
+        prompt=refiner_prompt_input(),
     output:
         manifest=L.refined_manifest("{variant}", "{bench}"),
     log:
