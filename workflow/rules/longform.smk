@@ -41,9 +41,9 @@ rule longform_buffers:
         "../../envs/blender.yaml"
     threads: 1
     resources:
+        **blender_resources(),
         mem_mb=3000,
         runtime=60,
-        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=parent_dir,
@@ -67,9 +67,9 @@ rule longform_rgb:
         "../../envs/blender.yaml"
     threads: 1
     resources:
+        **blender_resources(),
         mem_mb=3000,
         runtime=120,
-        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,

@@ -16,9 +16,9 @@ rule render_buffers:
         "../../envs/blender.yaml"
     threads: 1
     resources:
+        **blender_resources(),
         mem_mb=3000,
         runtime=60,
-        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,
@@ -47,9 +47,9 @@ rule render_rgb:
         "../../envs/blender.yaml"
     threads: 1
     resources:
+        **blender_resources(),
         mem_mb=3000,
         runtime=120,
-        **blender_resources(),
     params:
         script=script_path("render_gt.py"),
         out_dir=trajectory_dir,
