@@ -21,6 +21,7 @@ include: "workflow/rules/refiner.smk"
 include: "workflow/rules/longform.smk"
 include: "workflow/rules/edit.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/relight.smk"
 
 
 rule ground_truth:
@@ -43,11 +44,7 @@ rule pairs:
 
 rule ablations:
     input:
-        [
-            L.eval_metrics(v, b)
-            for v in ds.VARIANTS
-            for b in BENCHMARKS
-        ],
+        [L.eval_metrics(v, b) for v in ds.VARIANTS for b in BENCHMARKS],
 
 
 rule longform_check:

