@@ -183,3 +183,54 @@ def test_rehearsal_trains_resumes_and_refines_with_the_paper_preset(tmp_path):
 
     frames = sorted((tmp_path / "refined" / "t0").glob("*.exr"))
     assert len(frames) == 61 and all(torch.isfinite(torch.from_numpy(read_rgb_exr(f))).all() for f in frames[::10])
+
+
+# ----------------------------------------------------------------------------- several processes
+def test_data_parallel_training_on_two_processes_writes_once_and_keeps_each_ranks_state(tmp_path):
+    """torchrun with 2 CPU processes (gloo): the code path of accelerate launch on 2 GPUs."""
+    from lightcrafter.io import display_to_linear, write_jsonl, write_rgb_exr
+    from lightcrafter.refiner.toy import toy_pair
+
+    recs = []
+    for i in range(3):
+        p = toy_pair(i, num_frames=5)
+        for key in ("proxy", "target"):
+            disp = ((p[key].numpy().transpose(1, 2, 3, 0) + 1) / 2).clip(0, 1)
+            for f, frame in enumerate(disp):
+                write_rgb_exr(tmp_path / f"p{i}" / key / f"{f:04d}.exr", display_to_linear(frame))
+        recs.append({"pair_id": f"p{i}", "kind": "synthetic", "scene_id": f"s{i}", "proxy": f"p{i}/proxy",
+                     "target": f"p{i}/target", "num_frames": 5, "width": 48, "height": 32, "split": "train"})
+    write_jsonl(tmp_path / "pairs.jsonl", recs)
+    cfg = {"model": {"ae_coeffs": [8, 4, 4]}, "select": {"val_scenes": 0},
+           "baselines": {"regressor_steps": 0, "affine_colour": False},
+           "train": {"max_steps": 2, "checkpoint_every": 1, "grad_accum": 1, "num_workers": 1}}
+
+    def launch(steps):
+        cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", SCRIPTS / "train_refiner.py",
+               "--pairs", "pairs.jsonl", "--config-json",
+               json.dumps({**cfg, "train": {**cfg["train"], "max_steps": steps}}), "--out", "m"]
+        r = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr[-3000:]
+        return r
+
+    launch(2)
+    ck = tmp_path / "m" / "checkpoints"
+    assert (ck / "step_0000002.pt").is_file() and (ck / "step_0000002.rank1.pt").is_file()
+    g0 = torch.load(ck / "step_0000002.pt", weights_only=False)["generator"]
+    g1 = torch.load(ck / "step_0000002.rank1.pt", weights_only=False)["generator"]
+    assert not torch.equal(g0, g1)  # per-rank seeds: the ranks draw different samples
+    launch(3)  # a longer run resumes both ranks from step 2
+    assert "resumed from step_0000002.pt at step 2" in (tmp_path / "m" / "train.log").read_text()
+    assert len(json.loads((tmp_path / "m" / "loss_curve.json").read_text())["loss_per_optimizer_step"]) == 3
+    assert torch.load(tmp_path / "m" / "model.pt", weights_only=False)["train"]["steps"] == 3
+
+
+def test_the_train_rule_launches_one_process_per_configured_gpu(tmp_path):
+    from workflow_util import venv_env
+
+    cmd = [sys.executable, "-m", "snakemake", "-n", "-p", "--cores", "1", "-d", str(tmp_path), "--configfile",
+           str(REPO / "config" / "ci.yaml"), "--config", "refiner={resources: {gpus: 2}}", "--",
+           "results/refiner/full/model.pt"]
+    r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, env=venv_env())
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "accelerate launch --multi_gpu --num_machines 1 --num_processes 2" in r.stdout

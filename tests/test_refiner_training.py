@@ -28,6 +28,17 @@ def test_resume_is_bit_for_bit(tmp_path):
     assert curve["loss_per_optimizer_step"] == straight
 
 
+def test_resume_with_data_loading_workers_is_bit_for_bit(tmp_path):
+    """train.num_workers > 0 (the paper preset): pairs are read in worker processes, ahead of the step."""
+    cfg = resolve_config({**CFG, "train": {**CFG["train"], "num_workers": 2}})
+    straight = train(cfg, ToyDataset(3), tmp_path / "a", progress=False)["losses"]
+    train(cfg, ToyDataset(3), tmp_path / "b", progress=False, stop_after=3)
+    resumed = train(cfg, ToyDataset(3), tmp_path / "b", progress=False)["losses"]
+    assert len(straight) == 6 and resumed == straight
+    inline = train(resolve_config(CFG), ToyDataset(3), tmp_path / "c", progress=False)["losses"]
+    assert inline != straight  # another index stream: the workers really supplied the pairs
+
+
 def test_checkpoint_of_another_config_is_not_resumed(tmp_path):
     """A config change (here: a wider latent) after a killed run trains afresh instead of crashing."""
     train(resolve_config(CFG), ToyDataset(3), tmp_path, progress=False, stop_after=2)

@@ -119,6 +119,10 @@ class RefinerTrainSettings(_Section):
         "all", description="all (uniform over the scheduler's training steps, paper) | sampler_range: uniform over "
         "[last timestep the sampler visits at infer.num_steps, first timestep at the largest strength in "
         "select.strengths and infer.strength]")
+    num_workers: NonNegativeInt = Field(
+        0, description="data-loading worker processes: 0 = pairs are read in the training process, the pair index "
+        "drawn from the run's generator (tiny); N > 0 = a DataLoader reads them in N processes ahead of the GPU, "
+        "the pair indices from their own seeded stream (resumable by count). paper: 4")
     hflip: bool = Field(False, description="augmentation: mirror each training sample (proxy and target) left-right "
                         "with probability 1/2")
     anchor_lr: Optional[PositiveFloat] = Field(None, description="AdamW learning rate of the anchor's affine map "
@@ -267,7 +271,8 @@ PRESETS: dict[str, dict] = {
         },
         # 48 h of training (the paper) as optimizer steps: 2,000 at ~83 s per step on one A6000 (derivation in
         # docs/paper_numbers.md; scale by the GPU count under data parallelism)
-        "train": {"lr": 1e-5, "warmup_steps": 0, "latent_window": 13, "max_steps": 2000, "checkpoint_every": 200},
+        "train": {"lr": 1e-5, "warmup_steps": 0, "latent_window": 13, "max_steps": 2000, "checkpoint_every": 200,
+                  "num_workers": 4},
         "infer": {"window": 13, "overlap": 3, "sampler": "dpm"},  # paper: "full DPM solver", 50 steps
         "data": {"cache_pixels": False},
     },

@@ -5,7 +5,10 @@ Randomness: every draw of a training step (pair index, latent crop, conditioning
 dropout coin, timestep, diffusion noise) comes from ONE ``torch.Generator`` seeded by ``cfg.seed``;
 its state, the global torch/numpy/python RNG states, the model, the optimizer and the LR schedule
 are saved in each checkpoint, at optimizer-step boundaries, so ``N straight`` and
-``N/2 + resume + N/2`` give identical loss curves on the CPU.
+``N/2 + resume + N/2`` give identical loss curves on the CPU. With ``train.num_workers`` > 0 the
+pair index alone comes from a second seeded stream (:class:`PairIndexStream`) that a DataLoader's
+worker processes read ahead; the checkpoint records how many pairs were consumed, and the resumed
+stream skips exactly those, so resumption stays bit-for-bit.
 
 Windows: each sample is a ``train.latent_window``-frame crop at a random offset of the globally
 encoded clip, so (like tiled inference) most windows start with a 4-frame latent rather than the
@@ -115,6 +118,26 @@ def regression_loss(model: Refiner, target_lat: torch.Tensor, proxy_lat: torch.T
     return torch.mean((regression_x0(model, proxy_lat) - target_lat) ** 2)
 
 
+class PairIndexStream(torch.utils.data.Sampler):
+    """Endless pair indices for a DataLoader with worker processes (``train.num_workers`` > 0): uniform
+    draws from their own generator seeded ``seed``, starting after ``start`` draws (the number a
+    resumed run had consumed; the DataLoader reads ahead, so its state is not the consumed count)."""
+
+    def __init__(self, n: int, seed: int, start: int = 0):
+        self.n, self.seed, self.start = int(n), int(seed), int(start)
+
+    def __iter__(self):
+        g = torch.Generator().manual_seed(self.seed)
+        for _ in range(self.start):
+            torch.randint(self.n, (1,), generator=g)
+        while True:
+            yield int(torch.randint(self.n, (1,), generator=g))
+
+
+def _index_seed(cfg: dict, rank: int) -> int:
+    return (int(cfg["seed"]) + 1) * 1_000_003 + rank
+
+
 def snapshot_path(out_dir: Path, step: int) -> Path:
     return Path(out_dir) / CANDIDATES / f"step_{step:07d}.pt"
 
@@ -203,7 +226,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     acc = Accelerator(gradient_accumulation_steps=tr["grad_accum"], cpu=device.type == "cpu", mixed_precision="no")
     rank, main = acc.process_index, acc.is_main_process
     gen = torch.Generator().manual_seed(cfg["seed"] + rank)
-    step, losses = 0, []
+    step, losses, drawn = 0, [], 0
 
     fingerprint = run_fingerprint(cfg, dataset, objective)
     ckpt = latest_checkpoint(out_dir)
@@ -233,6 +256,8 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         np.random.set_state(st["numpy_rng"])
         random.setstate(st["python_rng"])
         step, losses = st["step"], list(st["losses"])
+        drawn = int(st.get("pairs_drawn", 0)) if rank == 0 else int(
+            torch.load(rank_file, weights_only=False).get("pairs_drawn", 0))
         log.info("resumed from %s at step %d", ckpt.name, step)
 
     dev = acc.device
@@ -251,7 +276,8 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         name = f"step_{step:07d}.pt"
         acc.wait_for_everyone()
         if rank > 0:  # only this rank's generator; rank 0 writes the rest
-            save_checkpoint(out_dir / CKPT_DIR / f"step_{step:07d}.rank{rank}.pt", {"generator": gen.get_state()})
+            save_checkpoint(out_dir / CKPT_DIR / f"step_{step:07d}.rank{rank}.pt",
+                            {"generator": gen.get_state(), "pairs_drawn": drawn})
         acc.wait_for_everyone()
         if not main:
             return
@@ -265,6 +291,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
             "numpy_rng": np.random.get_state(),
             "python_rng": random.getstate(),
             "step": step,
+            "pairs_drawn": drawn,
             "losses": losses,
             "config": cfg,
             "fingerprint": fingerprint,
@@ -281,11 +308,21 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     bar = tqdm(total=tr["max_steps"], initial=step, desc="refiner", disable=not (progress and main), file=sys.stderr)
     done_here, t_start = 0, time.perf_counter()
     window = int(tr["latent_window"])
+    pairs = None
+    if tr["num_workers"] > 0:  # read pairs in worker processes, ahead of the training step
+        loader = torch.utils.data.DataLoader(dataset, batch_size=None, num_workers=int(tr["num_workers"]),
+                                             sampler=PairIndexStream(len(dataset), _index_seed(cfg, rank), drawn),
+                                             prefetch_factor=2, persistent_workers=False)
+        pairs = iter(loader)
     while step < tr["max_steps"] and (stop_after is None or done_here < stop_after):
         micro = []
         for _ in range(tr["grad_accum"]):
             with acc.accumulate(model.transformer):
-                item = dataset[int(torch.randint(len(dataset), (1,), generator=gen))]
+                if pairs is not None:
+                    item = next(pairs)
+                else:
+                    item = dataset[int(torch.randint(len(dataset), (1,), generator=gen))]
+                drawn += 1
                 flip = bool(tr["hflip"]) and bool(torch.rand((), generator=gen) < 0.5)
                 if flip:  # mirror proxy and target alike (a mirrored scene is a valid scene)
                     item = {**item, "proxy": item["proxy"].flip(-1), "target": item["target"].flip(-1)}
@@ -311,6 +348,9 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
                     loss = training_loss(model, sched, tgt[:, s:e].float(), zp, t.to(dev), noise, anchor=zp_full)
                 acc.backward(loss)
                 if acc.sync_gradients:
+                    if acc.num_processes > 1 and model.anchor_map is not None:  # outside DDP: average by hand
+                        for p in model.anchor_map.parameters():
+                            p.grad = acc.reduce(p.grad, reduction="mean")
                     acc.clip_grad_norm_(params, tr["max_grad_norm"])
                 opt.step()
                 lr_sched.step()
@@ -329,6 +369,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         if step % tr["checkpoint_every"] == 0 or step == tr["max_steps"] or done_here == stop_after:
             checkpoint()
     bar.close()
+    del pairs  # stops the worker processes
     sec = (time.perf_counter() - t_start) / max(done_here, 1)
     acc.wait_for_everyone()
     if step >= tr["max_steps"] and main:
