@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -36,6 +37,20 @@ def test_cuda_device_without_a_gpu_is_one_line_naming_the_key(monkeypatch):
     with pytest.raises(NoGPUError, match="given a GPU .SLURM_GPUS_ON_NODE=1"):
         resolve_device("auto", "refiner.device")
     assert resolve_device("cpu").type == "cpu"  # the tiny preset keeps running on the CPU
+
+
+def test_the_estimator_follows_the_same_policy():
+    from lightcrafter.devices import NoGPUError
+    from lightcrafter.recon.estimator import EstimatorConfig, GBufferNet, Sample, predict, train_estimator
+
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is present")
+    assert EstimatorConfig.from_dict({}).device == "cpu"
+    s = Sample(*(torch.zeros(n, 16, 16) for n in (3, 1, 3, 3, 1, 1, 1)))
+    s.log_depth, s.roughness, s.metallic, s.mask = (torch.zeros(16, 16) for _ in range(4))
+    with pytest.raises(NoGPUError, match="recon.estimator.device=cuda"):
+        train_estimator([s], [], EstimatorConfig.from_dict({"device": "cuda", "steps": 1}), log=lambda m: None)
+    assert predict(GBufferNet([4, 8]), np.zeros((16, 16, 3), np.float32))["depth"].shape == (16, 16)
 
 
 def test_presets_pick_their_devices():

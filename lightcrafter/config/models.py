@@ -191,6 +191,9 @@ class Estimator(Section):
     """The G-buffer estimator of the default backend (:mod:`lightcrafter.recon.estimator`)."""
 
     widths: list[PositiveInt] = Field([16, 32, 48, 64], min_length=2, description="U-Net channels per level")
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        "cpu", description="where it trains and predicts (lightcrafter/devices.py: cuda is an error without a GPU, "
+        "auto uses one when present); cpu keeps its runs bit-reproducible")
     steps: PositiveInt = Field(400, description="optimizer steps")
     batch: PositiveInt = Field(8, description="crops per step")
     crop: Optional[list[int]] = Field([64, 96], min_length=2, max_length=2,

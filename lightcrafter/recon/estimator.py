@@ -93,7 +93,7 @@ class GBufferNet(nn.Module):
         if h % self.stride or w % self.stride:
             raise ValueError(f"frame {w}x{h}: width and height must be multiples of {self.stride}")
         if coords is None:
-            coords = frame_coords(h, w).expand(b, 2, h, w)
+            coords = frame_coords(h, w).expand(b, 2, h, w).to(rgb.device)
         x = torch.cat([rgb * 2 - 1, coords], dim=1)
         feats = []
         for i, blk in enumerate(self.down):
@@ -107,7 +107,8 @@ class GBufferNet(nn.Module):
         parts = dict(zip(OUTPUT_CHANNELS, torch.split(out, list(OUTPUT_CHANNELS.values()), dim=1)))
         return {
             "log_depth": parts["log_depth"][:, 0] + 1.5,  # centred on e^1.5 = 4.5 m, the cameras' typical distance
-            "normal": F.normalize(parts["normal"] + torch.tensor([0.0, -1.0, 0.0]).view(1, 3, 1, 1), dim=1),
+            "normal": F.normalize(parts["normal"] + torch.tensor([0.0, -1.0, 0.0], device=out.device).view(1, 3, 1, 1),
+                                  dim=1),
             "albedo": torch.sigmoid(parts["albedo"]),
             "roughness": torch.sigmoid(parts["roughness"][:, 0]),
             "metallic": torch.sigmoid(parts["metallic"][:, 0] - 2.0),
@@ -217,9 +218,11 @@ def predict(model: GBufferNet, display_rgb: np.ndarray) -> dict[str, np.ndarray]
     if single:
         x = x[None]
     model.eval()
+    dev = next(model.parameters()).device
     outs = []
     for k in range(0, len(x), 8):
-        p = model(torch.from_numpy(np.ascontiguousarray(x[k:k + 8].transpose(0, 3, 1, 2))))
+        p = model(torch.from_numpy(np.ascontiguousarray(x[k:k + 8].transpose(0, 3, 1, 2))).to(dev))
+        p = {key: v.cpu() for key, v in p.items()}
         outs.append({"depth": torch.exp(p["log_depth"]).numpy(), "normal_cam": p["normal"].permute(0, 2, 3, 1).numpy(),
                      "albedo": p["albedo"].permute(0, 2, 3, 1).numpy(), "roughness": p["roughness"].numpy(),
                      "metallic": p["metallic"].numpy(), "mask": torch.sigmoid(p["mask_logit"]).numpy()})
@@ -244,10 +247,13 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
     if not train:
         raise io.DataError("G-buffer estimator: no training frames (the recon split is empty); "
                            "give scenes.splits a recon share")
+    from lightcrafter.devices import resolve_device
+
+    dev = resolve_device(cfg.device, "recon.estimator.device")
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
-    model = GBufferNet(cfg.widths)
+    model = GBufferNet(cfg.widths).to(dev)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1), eta_min=cfg.lr * 0.05)
     curve, seconds = [], 0.0
@@ -269,6 +275,9 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
             batch = Sample(**{k: torch.flip(getattr(batch, k), dims=[-1]) for k in Sample.__dataclass_fields__})
             batch.normal_cam = batch.normal_cam * torch.tensor([-1.0, 1.0, 1.0]).view(1, 3, 1, 1)
             coords = torch.flip(coords, dims=[-1]) * torch.tensor([-1.0, 1.0]).view(1, 2, 1, 1)
+        if dev.type != "cpu":  # all random draws above stay on the CPU generator
+            batch = Sample(**{k: getattr(batch, k).to(dev) for k in Sample.__dataclass_fields__})
+            coords = coords.to(dev)
         terms = loss_terms(model(batch.rgb, coords.contiguous()), batch)
         loss = sum(terms.values())
         opt.zero_grad()
@@ -304,7 +313,9 @@ def load(path: str | Path) -> GBufferNet:
         model.load_state_dict(st["state"])
     except (KeyError, RuntimeError, EOFError) as exc:
         raise io.DataError(f"{path}: unreadable estimator weights ({exc}); delete it and retrain") from exc
-    return model.eval()
+    from lightcrafter.devices import resolve_device
+
+    return model.to(resolve_device(st["config"].get("device", "cpu"), "recon.estimator.device")).eval()
 
 
 def curve_bench(curve: list[dict], cfg: EstimatorConfig, metric: str = "normal_deg") -> dict:
