@@ -181,7 +181,8 @@ def main() -> int:
                   "second_run_resumed": log2.count("already refined")},
         "relight": relit if relit is not None else "not run: no --estimator",
         "seconds": {k: round(v, 2) for k, v in times.items()},
-        "peak_cpu_rss_mb": round(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024, 1),
+        "peak_cpu_rss_mb": round(max(resource.getrusage(w).ru_maxrss for w in (resource.RUSAGE_SELF,
+                                                                               resource.RUSAGE_CHILDREN)) / 1024, 1),
         "peak_cuda_allocated_mb": (round(torch.cuda.max_memory_allocated() / 2**20, 1)
                                    if torch.cuda.is_available() else None),
     }
