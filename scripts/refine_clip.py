@@ -5,7 +5,8 @@
       --out results/edits/light/refined [--strip-with results/proxy/s0003/t0/L1 ...]
 
 Writes OUT/{i:04d}.exr (linear), OUT.mp4, OUT.json (manifest, last) and, with --strip-with, a frame
-strip OUT/../strip.png (the given folders | proxy | refined, middle frame) and OUT/../side_by_side.mp4.
+strip OUT/../strip.png (labelled columns: the given folders | proxy | refined; rows: first, middle and
+last frame) and OUT/../side_by_side.mp4.
 """
 
 import argparse
@@ -26,6 +27,8 @@ def main() -> int:
     ap.add_argument("--proxy", required=True, help="folder of linear frames (its manifest <folder>.json beside it)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--strip-with", nargs="*", default=[], help="folders shown before proxy and refined")
+    ap.add_argument("--strip-labels", nargs="*", default=None, help="their column labels (default: folder names)")
+    ap.add_argument("--out-label", default="refined", help="label of the refined column")
     ap.add_argument("--config-json", default="{}", help="overrides of the stored config (e.g. infer.pad_frames, "
                     "device)")
     ap.add_argument("--threads", type=int, default=None)
@@ -53,13 +56,15 @@ def main() -> int:
     io.write_video(out.with_suffix(".mp4"), io.to_uint8(disp), fps=float(man.get("fps", 24)))
     folders = [Path(p) for p in a.strip_with] + [proxy_dir, out]
     if a.strip_with:
-        mid = len(disp) // 2
-        tiles = [io.to_uint8(io.linear_to_display(io.read_rgb_exr(f / f"{mid:04d}.exr"), ev)) for f in folders]
-        strip = np.concatenate([np.pad(t, ((0, 0), (0, 4), (0, 0)), constant_values=255) for t in tiles], 1)
-        import imageio.v3 as iio
+        from lightcrafter.refiner.strip import strip_frames, write_strip
 
-        with io.atomic_path(out.parent / "strip.png") as tmp:
-            iio.imwrite(tmp, np.repeat(np.repeat(strip, 2, 0), 2, 1), extension=".png")
+        labels = list(a.strip_labels or [f.name for f in a.strip_with]) + ["proxy", a.out_label]
+        if len(labels) != len(folders):
+            raise io.DataError(f"--strip-labels: {len(a.strip_labels)} labels for {len(a.strip_with)} --strip-with folders")
+        rows = strip_frames(len(disp))  # first, middle and last frame
+        columns = [(lab, np.stack([io.linear_to_display(io.read_rgb_exr(f / f"{i:04d}.exr"), ev) for i in rows]))
+                   for lab, f in zip(labels, folders)]
+        write_strip(out.parent / "strip.png", columns, frames=list(range(len(rows))))
         side_by_side_video(folders, out.parent / "side_by_side.mp4")
     io.write_json(out.with_suffix(".json"), {"format": "lightcrafter.refined/1", "model": a.model, "proxy": str(proxy_dir),
                                              "num_frames": len(disp), "frames": [f"{out.name}/{i:04d}.exr"

@@ -129,7 +129,7 @@ rule relight_refine:
         ),
     shell:
         "python {params.script} --model {input.model} --proxy {params.proxy} --out {params.out_dir} "
-        "--strip-with {params.original} --config-json {params.cfg} --threads {threads} > {log} 2>&1"
+        "--strip-with {params.original} --strip-labels input --out-label relit --config-json {params.cfg} --threads {threads} > {log} 2>&1"
 
 
 rule relight:
