@@ -116,11 +116,13 @@ def project(cfg: dict, measured: dict | None = None) -> dict:
 
 
 def _fmt_bytes(b: float) -> str:
-    for unit in ("B", "KB", "MB", "GB", "TB"):
-        if b < 1000 or unit == "TB":
-            return f"{b:.1f} {unit}" if unit != "B" else f"{b:.0f} B"
+    if b < 1000:
+        return f"{b:.0f} B"
+    for unit in ("KB", "MB", "GB"):
         b /= 1000.0
-    return f"{b:.1f} TB"
+        if b < 1000:
+            return f"{b:.1f} {unit}"
+    return f"{b / 1000.0:.1f} TB"
 
 
 def table(p: dict) -> str:
