@@ -310,7 +310,10 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     window = int(tr["latent_window"])
     pairs = None
     if tr["num_workers"] > 0:  # read pairs in worker processes, ahead of the training step
-        loader = torch.utils.data.DataLoader(dataset, batch_size=None, num_workers=int(tr["num_workers"]),
+        import os
+
+        workers = min(int(tr["num_workers"]), max(1, len(os.sched_getaffinity(0)) - 1))  # the data are the same
+        loader = torch.utils.data.DataLoader(dataset, batch_size=None, num_workers=workers,
                                              sampler=PairIndexStream(len(dataset), _index_seed(cfg, rank), drawn),
                                              prefetch_factor=2, persistent_workers=False)
         pairs = iter(loader)
