@@ -58,7 +58,7 @@ def main() -> int:
     if a.strip_with:
         from lightcrafter.refiner.strip import strip_frames, write_strip
 
-        labels = list(a.strip_labels or [f.name for f in a.strip_with]) + ["proxy", a.out_label]
+        labels = list(a.strip_labels or [Path(f).name for f in a.strip_with]) + ["proxy", a.out_label]
         if len(labels) != len(folders):
             raise io.DataError(f"--strip-labels: {len(a.strip_labels)} labels for {len(a.strip_with)} --strip-with folders")
         rows = strip_frames(len(disp))  # first, middle and last frame
