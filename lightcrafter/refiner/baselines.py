@@ -62,12 +62,10 @@ def load_regressor(model_path):
     reg = (st.get("baselines") or {}).get("regressor")
     if not reg:
         return None
-    from lightcrafter.devices import resolve_device
-
     model = Refiner(st["config"])
     model.load_weights(reg)
     model.ae.load_state_dict(reg["ae"])
-    return model.to(resolve_device(st["config"]["device"], "refiner.device")).eval()
+    return model.to_configured_device().eval()
 
 
 def load_affine_colour(model_path) -> dict | None:

@@ -28,7 +28,6 @@ from __future__ import annotations
 import copy
 import itertools
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -87,12 +86,10 @@ def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_step
 def _candidate_model(cfg: dict, out_dir: Path, step: int, final_step: int, ae_state: dict) -> Refiner:
     if step == final_step:
         return load_model(out_dir / DIFFUSION_FINAL, apply_selection=False)
-    from lightcrafter.devices import resolve_device
-
     model = Refiner(cfg)
     model.load_weights(torch.load(snapshot_path(out_dir, step), map_location="cpu", weights_only=False))
     model.ae.load_state_dict(ae_state)
-    return model.to(resolve_device(cfg["device"], "refiner.device")).eval()
+    return model.to_configured_device().eval()
 
 
 def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = True,
@@ -121,8 +118,8 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     t0 = time.perf_counter()
     res = train(cfg, fit_ds, out_dir, snapshot_steps=steps, final_name=DIFFUSION_FINAL, progress=progress)
     train_seconds = time.perf_counter() - t0
-    if int(os.environ.get("RANK", "0")) != 0:  # data-parallel training: rank 0 selects and writes the model
-        return {"train": {"steps": res["step"], "seconds_per_step": res["seconds_per_step"]}, "rank": os.environ["RANK"]}
+    if res["rank"] != 0:  # data-parallel training: rank 0 selects and writes the model
+        return {"train": {"steps": res["step"], "seconds_per_step": res["seconds_per_step"]}, "rank": res["rank"]}
     final = torch.load(out_dir / DIFFUSION_FINAL, map_location="cpu", weights_only=False)
 
     fingerprint = run_fingerprint(cfg, fit_ds)
@@ -181,12 +178,10 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
         baselines["regressor"] = {**{k: rst[k] for k in weight_keys if k in rst}, "ae": rst["ae"],
                                   "steps": rres["step"], "seconds_this_run": time.perf_counter() - t0}
         if selecting:
-            from lightcrafter.devices import resolve_device
-
             reg = Refiner(cfg)
             reg.load_weights(rst)
             reg.ae.load_state_dict(rst["ae"])
-            reg.to(resolve_device(cfg["device"], "refiner.device"))
+            reg.to_configured_device()
             sc = score_method(lambda item: regress_video(reg.eval(), item["proxy"][None])[0], val_ds)
             baselines["regressor"]["val"] = {k: sc[k] for k in ("psnr_db", "ssim")}
     if base["affine_colour"]:

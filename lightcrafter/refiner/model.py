@@ -209,6 +209,12 @@ class Refiner(nn.Module):
     def device(self) -> torch.device:
         return self.alphas_cumprod.device
 
+    def to_configured_device(self) -> "Refiner":
+        """Move to the device of the config's ``device`` policy (lightcrafter/devices.py); returns self."""
+        from lightcrafter.devices import resolve_device
+
+        return self.to(resolve_device(self.cfg["device"], "refiner.device"))
+
     def _rotary(self, frames: int, h: int, w: int, device):
         tc = self.tcfg
         if not tc.use_rotary_positional_embeddings:

@@ -186,7 +186,8 @@ def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
 
 def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True,
           objective: str = "diffusion", snapshot_steps=(), final_name: str = "model.pt") -> dict:
-    """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float}.
+    """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float,
+    "rank": this process's data-parallel rank (0 alone writes files)}.
 
     ``dataset[i]`` -> {"pair_id", "proxy", "target"} with (3, N, H, W) tensors in [-1, 1].
     ``stop_after`` stops after that many optimizer steps of THIS call (simulates a killed job;
@@ -250,14 +251,13 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         model.ae.load_state_dict(st["ae"])
         opt.load_state_dict(st["optimizer"])
         lr_sched.load_state_dict(st["lr_scheduler"])
-        rank_file = ckpt.with_suffix(f".rank{rank}.pt")
-        gen.set_state(st["generator"] if rank == 0 else torch.load(rank_file, weights_only=False)["generator"])
+        own = st if rank == 0 else torch.load(ckpt.with_suffix(f".rank{rank}.pt"), weights_only=False)
+        gen.set_state(own["generator"])
         torch.set_rng_state(st["torch_rng"])
         np.random.set_state(st["numpy_rng"])
         random.setstate(st["python_rng"])
         step, losses = st["step"], list(st["losses"])
-        drawn = int(st.get("pairs_drawn", 0)) if rank == 0 else int(
-            torch.load(rank_file, weights_only=False).get("pairs_drawn", 0))
+        drawn = int(own.get("pairs_drawn", 0))
         log.info("resumed from %s at step %d", ckpt.name, step)
 
     dev = acc.device
@@ -380,7 +380,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         with atomic_path(out_dir / "loss_curve.json") as tmp:
             tmp.write_text(json.dumps({"loss_per_optimizer_step": losses, "seconds_per_optimizer_step": sec}))
     log.info("stopped at step %d (%.3f s/optimizer step this run)", step, sec)
-    return {"losses": losses, "step": step, "seconds_per_step": sec}
+    return {"losses": losses, "step": step, "seconds_per_step": sec, "rank": rank}
 
 
 def save_model(path: Path, weights: dict, ae, cfg: dict) -> None:
@@ -409,11 +409,8 @@ def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = 
     chosen = (st.get("selection") or {}).get("chosen")
     if apply_selection and chosen:
         cfg = resolve_config(_merge(cfg, {"infer": {k: chosen[k] for k in SELECTED_INFER_KEYS if k in chosen}}))
-    from lightcrafter.devices import resolve_device
-
-    device = resolve_device(cfg["device"], "refiner.device") if device is None else torch.device(device)
     model = Refiner(cfg)
     model.load_weights(st)
     model.ae.load_state_dict(st["ae"])
     model.selection = st.get("selection")
-    return model.to(device).eval()
+    return (model.to_configured_device() if device is None else model.to(device)).eval()
