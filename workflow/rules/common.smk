@@ -2,6 +2,7 @@
 # Paths come from lightcrafter.layout.Layout (one builder per product); dataset variants and held-out
 # benchmarks from the registries in lightcrafter.datasets; Phi's backends from lightcrafter.recon.BACKENDS.
 # Settings and plans reach scripts through files the workflow writes (params_file), never on a command line.
+import functools
 import hashlib
 import json
 import os
@@ -557,8 +558,10 @@ def relight_dir(*parts):
     return str(Path(config["output_dir"], "relight", relight_name(), *parts))
 
 
-def relight_clip(wildcards):
-    """The ingest_video clip description of the relight video (every frame from start_frame, capped)."""
+@functools.lru_cache(maxsize=None)
+def relight_clip():
+    """The ingest_video clip description of the relight video (every frame from start_frame, capped).
+    Cached: counting the frames of a video file decodes it, once per workflow build."""
     r = config["relight"]
     n = r["num_frames"]
     if n is None:

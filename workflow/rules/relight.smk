@@ -14,10 +14,10 @@ rule relight_ingest:
         "../../envs/recon.yaml"
     params:
         script=script_path("ingest_video.py"),
-        clip=lambda wc: params_file(relight_clip(wc)),
+        clip=lambda wc: params_file(relight_clip()),
         name=lambda wc: relight_name(),
         out_dir=lambda wc, output: str(Path(output.video).with_suffix("")),
-        num_frames=lambda wc: relight_clip(wc)["num_frames"],
+        num_frames=lambda wc: relight_clip()["num_frames"],
         w=config["scenes"]["width"],
         h=config["scenes"]["height"],
     shell:
