@@ -190,6 +190,10 @@ class SfM(Section):
 class Estimator(Section):
     """The G-buffer estimator of the default backend (:mod:`lightcrafter.recon.estimator`)."""
 
+    weights: str = Field("train", description="the estimator Phi uses: `train` (the train_gbuffer_estimator rule on "
+                         "this run's recon split), `shipped` (the project's pretrained weights, "
+                         "lightcrafter/recon/weights/, provenance beside them) or a path to a weights file; widths to "
+                         "seed configure training only")
     widths: list[PositiveInt] = Field([16, 32, 48, 64], min_length=2, description="U-Net channels per level")
     device: Literal["auto", "cpu", "cuda"] = Field(
         "cpu", description="where it trains and predicts (lightcrafter/devices.py: cuda is an error without a GPU, "

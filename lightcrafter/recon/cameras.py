@@ -73,10 +73,15 @@ def median_motion_px(frames: np.ndarray, ratio: float = 0.75) -> float:
     (OpenCV SIFT, Lowe's ratio test): the typical image motion per frame, robust to the few pairs in
     which moving shadows dominate the matches. SIFT matching, unlike brightness-constancy tracking, holds
     under the strong lighting changes of a rotating environment, where moving shadows are a minority
-    of the matches. Returns 0.0 for a one-frame clip; inf when fewer than 8 matches are found."""
+    of the matches. Returns 0.0 for a one-frame clip and for frames that do not change (mean absolute
+    difference of consecutive uint8 frames below 0.5 levels: a featureless video that does not change, e.g.
+    black, has no motion to measure); inf when fewer than 8 matches are found."""
     import cv2
 
     if len(frames) < 2:
+        return 0.0
+    f16 = np.asarray(frames).astype(np.int16)
+    if all(np.abs(b - a).mean() < 0.5 for a, b in zip(f16[:-1], f16[1:])):
         return 0.0
     sift = cv2.SIFT_create(nfeatures=2000)
     matcher = cv2.BFMatcher(cv2.NORM_L2)

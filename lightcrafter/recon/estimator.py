@@ -35,6 +35,7 @@ from pydantic import Field
 
 from lightcrafter.config.models import Estimator
 from lightcrafter import io
+from lightcrafter.recon.weights import SHIPPED_WEIGHTS
 
 OUTPUT_CHANNELS = {"log_depth": 1, "normal": 3, "albedo": 3, "roughness": 1, "metallic": 1, "mask": 1}
 
@@ -211,9 +212,16 @@ def buffer_errors(pred: dict[str, np.ndarray], gt: io.Buffers, c2w: np.ndarray |
 # ----------------------------------------------------------------------------- train / predict
 @torch.no_grad()
 def predict(model: GBufferNet, display_rgb: np.ndarray) -> dict[str, np.ndarray]:
-    """Predictions for display frames (N,H,W,3) in [0,1] (or one frame (H,W,3)); numpy arrays per key:
+    """Predictions for display frames (N,H,W,3) in [0,1] (or one frame (H,W,3); anything else is a
+    ValueError); numpy arrays per key:
     depth (metres of the training scale), normal_cam (OpenCV camera axes), albedo, roughness, metallic, mask."""
     x = np.asarray(display_rgb, np.float32)
+    if not np.isfinite(x).all():
+        raise ValueError(f"estimator input has {int((~np.isfinite(x)).sum())} NaN/Inf values; frames must be finite "
+                         "display RGB (lightcrafter.io.linear_to_display maps them)")
+    if x.min() < 0 or x.max() > 1:
+        raise ValueError(f"estimator input spans [{x.min():.3g}, {x.max():.3g}], not display values in [0, 1]; convert "
+                         "linear frames with lightcrafter.io.linear_to_display first")
     single = x.ndim == 3
     if single:
         x = x[None]
@@ -238,6 +246,21 @@ def _validation_errors(model: GBufferNet, val: list[tuple[np.ndarray, io.Buffers
                                    "roughness": p["roughness"], "metallic": p["metallic"], "mask": p["mask"]}, b, c2w))
     keys = [k for k in rows[0] if k != "pixels"]
     return {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
+
+
+def check_set_errors(model: GBufferNet, path: str | Path) -> dict[str, float]:
+    """Mean buffer errors (:func:`buffer_errors`) of ``model`` on a check set written by
+    scripts/ship_estimator.py (npz: rgb, c2w and ground-truth buffer arrays per frame)."""
+    d = np.load(path)
+    val = []
+    for i in range(len(d["rgb"])):
+        m = d["mask"][i].astype(np.float32)
+        b = io.Buffers(depth=np.where(m > 0.5, d["depth"][i].astype(np.float32), np.inf),
+                       normal=d["normal"][i].astype(np.float32), albedo=d["albedo"][i].astype(np.float32),
+                       roughness=d["roughness"][i].astype(np.float32), metallic=d["metallic"][i].astype(np.float32),
+                       mask=m)
+        val.append((d["rgb"][i].astype(np.float32), b, d["c2w"][i]))
+    return _validation_errors(model, val)
 
 
 def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers, np.ndarray]], cfg: EstimatorConfig,
@@ -304,15 +327,37 @@ def save(model: GBufferNet, cfg: EstimatorConfig, path: str | Path, extra: dict 
 
 
 def load(path: str | Path) -> GBufferNet:
+    """The estimator saved at ``path`` (:func:`save`); a missing, corrupt or mismatched file is a DataError
+    of one line naming the file and the fix."""
+    import pickle
+    import zipfile
+
     path = Path(path)
+    if path == SHIPPED_WEIGHTS:
+        fix = "restore it with `git checkout lightcrafter/recon/weights`, or set recon.estimator.weights: train"
+    elif path.name == "model.pt" and path.parent.name == "estimator":
+        fix = "delete it and rerun the train_gbuffer_estimator rule, or set recon.estimator.weights: shipped"
+    else:
+        fix = ("point recon.estimator.weights at a file written by lightcrafter.recon.estimator.save, or set it to "
+               "shipped or train")
     if not path.is_file():
-        raise io.DataError(f"{path}: G-buffer estimator weights not found; run the train_gbuffer_estimator rule")
+        raise io.DataError(f"{path}: G-buffer estimator weights not found; {fix}")
     try:
         st = torch.load(path, map_location="cpu", weights_only=False)
-        model = GBufferNet(st["config"]["widths"])
+    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, AttributeError, ValueError,
+            TypeError, ModuleNotFoundError) as exc:
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else "truncated or corrupt"
+        raise io.DataError(f"{path}: unreadable estimator weights ({type(exc).__name__}: {why[:120]}); {fix}") from None
+    if not isinstance(st, dict) or "state" not in st or not isinstance(st.get("config"), dict) \
+            or "widths" not in st["config"]:
+        raise io.DataError(f"{path}: not a G-buffer estimator file (no 'state' and 'config' entries, as "
+                           f"lightcrafter.recon.estimator.save writes); {fix}")
+    model = GBufferNet(st["config"]["widths"])
+    try:
         model.load_state_dict(st["state"])
-    except (KeyError, RuntimeError, EOFError) as exc:
-        raise io.DataError(f"{path}: unreadable estimator weights ({exc}); delete it and retrain") from exc
+    except RuntimeError:
+        raise io.DataError(f"{path}: its weights do not fit the network its config names (widths "
+                           f"{st['config']['widths']}: another network shape or an edited file); {fix}") from None
     from lightcrafter.devices import resolve_device
 
     return model.to(resolve_device(st["config"].get("device", "cpu"), "recon.estimator.device")).eval()

@@ -222,9 +222,16 @@ def recon_settings():
     }
 
 
+def estimator_weights():
+    """The weights file of config recon.estimator.weights (train: this run's train_gbuffer_estimator)."""
+    from lightcrafter.recon.weights import weights_path
+
+    return str(weights_path(config["recon"]["estimator"]["weights"], L.estimator()))
+
+
 def estimator_input(wildcards):
     """The G-buffer estimator, needed by the default backend only."""
-    return [] if PAPER_STACK else L.estimator()
+    return [] if PAPER_STACK else estimator_weights()
 
 
 def estimator_arg(wildcards, input):
@@ -590,4 +597,4 @@ def relight_model():
 
 
 def relight_estimator(wildcards):
-    return [] if PAPER_STACK else (config["relight"]["estimator"] or L.estimator())
+    return [] if PAPER_STACK else (config["relight"]["estimator"] or estimator_weights())

@@ -1,0 +1,157 @@
+"""Numerical stability of the reconstruction stack Phi on stiff and extreme frames.
+
+The estimator (random initialisation and the shipped weights) and the default Phi get black, saturated,
+1e4-bright and noise-only frames, a one-pixel-wide object, an all-sky frame and depth ratios of 1e4:
+outputs stay finite and in range (unit normals, materials and mask in [0, 1], positive depth), and
+what cannot be reconstructed is reported (a one-line ReconstructionError naming the clip), not hidden.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from lightcrafter import io
+from lightcrafter.recon import estimator as est
+from lightcrafter.recon.weights import SHIPPED_WEIGHTS
+
+H, W = 32, 48
+
+
+def _linear_frames() -> dict[str, np.ndarray]:
+    """Linear HDR frames (H, W, 3) of the extreme cases, as a camera video would carry them."""
+    rng = np.random.default_rng(0)
+    one_px = np.full((H, W, 3), 0.2, np.float32)
+    one_px[:, W // 2] = (0.9, 0.1, 0.1)  # a one-pixel-wide red pole
+    sky = np.tile(np.linspace(1.5, 0.3, H, dtype=np.float32)[:, None, None], (1, W, 3)) * np.float32([0.6, 0.8, 1.0])
+    return {"black": np.zeros((H, W, 3), np.float32), "saturated": np.ones((H, W, 3), np.float32),
+            "bright_1e4": np.full((H, W, 3), 1e4, np.float32),
+            "noise": rng.random((H, W, 3)).astype(np.float32) ** 2 * 4.0, "one_pixel_object": one_px, "all_sky": sky}
+
+
+def _models():
+    torch.manual_seed(0)
+    models = [("random_init", est.GBufferNet([8, 16, 24]).eval())]
+    if SHIPPED_WEIGHTS.is_file():
+        models.append(("shipped", est.load(SHIPPED_WEIGHTS)))
+    return models
+
+
+def _check_ranges(p: dict, where: str) -> None:
+    for k, v in p.items():
+        assert np.isfinite(v).all(), f"{where}: {k} has non-finite values"
+    assert (p["depth"] > 0).all(), f"{where}: non-positive depth"
+    np.testing.assert_allclose(np.linalg.norm(p["normal_cam"], axis=-1), 1.0, atol=1e-4, err_msg=f"{where}: normals")
+    for k in ("albedo", "roughness", "metallic", "mask"):
+        assert p[k].min() >= 0 and p[k].max() <= 1, f"{where}: {k} outside [0, 1]"
+
+
+@pytest.mark.parametrize("name,model", _models(), ids=lambda x: x if isinstance(x, str) else "")
+def test_estimator_outputs_stay_finite_and_in_range_on_extreme_frames(name, model):
+    frames = _linear_frames()
+    disp = np.stack([io.linear_to_display(f) for f in frames.values()])
+    p = est.predict(model, disp)
+    for i, case in enumerate(frames):
+        _check_ranges({k: v[i] for k, v in p.items()}, f"{name}/{case}")
+    # the display transform saturates a 1e4-bright frame exactly like a merely white one: same answer
+    np.testing.assert_array_equal(p["albedo"][1], p["albedo"][2])
+
+
+def test_estimator_rejects_frames_that_are_not_display_values():
+    model = est.GBufferNet([8, 16]).eval()
+    bad = np.zeros((H, W, 3), np.float32)
+    bad[3, 4, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        est.predict(model, bad)
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        est.predict(model, np.full((H, W, 3), 1e4, np.float32))  # linear radiance passed by mistake
+
+
+def test_depth_fit_and_normals_from_depth_with_a_1e4_depth_ratio():
+    from lightcrafter.recon.cameras import prior_intrinsics
+    from lightcrafter.recon.default import apply_depth_fit, normals_from_depth
+
+    K = prior_intrinsics(W, H, np.radians(50))
+    depth = np.full((H, W), 1e3, np.float64)
+    depth[10:20, 10:30] = 0.1  # a near object in front of a background 1e4 times farther
+    n = normals_from_depth(depth, K)
+    assert np.isfinite(n).all()
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-6)
+    fitted = apply_depth_fit(depth, np.array([2.0, 1e-3]))
+    assert np.isfinite(fitted).all() and (fitted > 0).all()
+    # a shift that would make far inverse depth negative marks those pixels invalid, never negative
+    cut = apply_depth_fit(depth, np.array([1.0, -5e-3]))
+    assert (cut[10:20, 10:30] > 0).all() and np.isinf(cut[0, 0])
+
+
+def test_proxy_of_a_1e4_depth_ratio_frame_is_finite():
+    from lightcrafter.clip import FrameView
+    from lightcrafter.proxy import synthetic as syn
+    from lightcrafter.proxy.lighting import Lighting
+    from lightcrafter.proxy.renderer import ProxyRenderer, RenderSettings
+
+    K = syn.intrinsics(W, H, np.radians(50))
+    depth = np.full((H, W), 1e3, np.float32)
+    depth[10:20, 10:30] = 0.1
+    normal = np.zeros((H, W, 3), np.float32)
+    normal[..., 1] = -1.0  # facing an OpenCV camera at the origin looking along +Y (world)
+    b = io.Buffers(depth=depth, normal=normal, albedo=np.full((H, W, 3), 0.5, np.float32),
+                   roughness=np.full((H, W), 0.5, np.float32), metallic=np.zeros((H, W), np.float32),
+                   mask=np.ones((H, W), np.float32))
+    c2w = syn.look_at([0, -1, 0], [0, 0, 0])
+    env = np.ones((16, 32, 3), np.float32)
+    for vis in ("frame", "aggregate"):
+        img = ProxyRenderer(Lighting(env=env), RenderSettings(spp=4, visibility=vis)).render(FrameView(b, K, c2w, "x"))
+        assert np.isfinite(img).all() and (img >= 0).all(), vis
+
+
+def _video(tmp_path, frames, name):
+    d = tmp_path / name
+    for i, f in enumerate(frames):
+        io.write_rgb_exr(d / f"{i:04d}.exr", f)
+    return d
+
+
+@pytest.mark.parametrize("case", ["black", "saturated", "all_sky"])
+def test_phi_on_a_uniform_video_takes_the_static_camera_and_writes_valid_buffers(tmp_path, case):
+    """A video too uniform for structure from motion has no measurable motion: the documented fallback
+    is a static camera (counted in the manifest's phi.method); the buffers are finite and in range."""
+    from lightcrafter.clip import read_clip
+    from lightcrafter.recon.default import DefaultSettings, reconstruct_default
+
+    model = est.GBufferNet([8, 16]).eval()
+    wpath = tmp_path / "est.pt"
+    est.save(model, est.EstimatorConfig(widths=[8, 16]), wpath)
+    f = _linear_frames()[case]
+    video = _video(tmp_path, [f] * 5, case)
+    m = reconstruct_default(video, tmp_path / "clip", estimator_path=wpath, fps=24, scene_static=True,
+                            settings=DefaultSettings(fov_x_deg=50.0))
+    assert m["phi"]["method"].startswith("static")
+    views, _ = read_clip(tmp_path / "clip")
+    for v in views:
+        b = v.buffers
+        ok = b.mask > 0.5
+        assert np.isfinite(b.normal).all() and np.isfinite(b.albedo).all()
+        assert (b.depth[ok] > 0).all() and np.isfinite(b.depth[ok]).all()
+        np.testing.assert_allclose(np.linalg.norm(b.normal[ok], axis=-1), 1.0, atol=1e-4)
+        assert 0 <= b.albedo.min() and b.albedo.max() <= 1
+
+
+def test_phi_on_a_noise_only_video_reports_the_failure(tmp_path):
+    """Independent noise in every frame has motion but no structure: structure from motion fails and Phi
+    says so in one line naming the clip (the workflow then counts it as left out), nothing is written."""
+    from lightcrafter.recon.cameras import ReconstructionError
+    from lightcrafter.recon.default import DefaultSettings, reconstruct_default
+
+    rng = np.random.default_rng(1)
+    frames = [rng.random((64, 96, 3)).astype(np.float32) for _ in range(5)]
+    video = _video(tmp_path, frames, "noise")
+    model = est.GBufferNet([8, 16]).eval()
+    wpath = tmp_path / "est.pt"
+    est.save(model, est.EstimatorConfig(widths=[8, 16]), wpath)
+    with pytest.raises(ReconstructionError, match="noise_clip") as exc:
+        reconstruct_default(video, tmp_path / "clip", estimator_path=wpath, fps=24, scene_static=True,
+                            settings=DefaultSettings(fov_x_deg=50.0), name="noise_clip")
+    assert "\n" not in str(exc.value)
+    assert not (tmp_path / "clip" / "buffers.json").exists()
