@@ -5,8 +5,10 @@ results/bench/recon_error.json (shape of docs/architecture.md) with series:
 
 * ``estimator_normal_deg`` / ``estimator_depth_abs_rel``: the G-buffer estimator's validation errors against
   seconds of training (the curve its training rule recorded), so a user can pick its budget;
-* ``normals_predicted`` / ``normals_from_depth``: Phi's normal error (degrees, after Align, held-out test
-  clips) with the estimator's normals or normals derived from its depth, against Phi's seconds per frame;
+* ``normals_predicted`` / ``normals_from_depth``: Phi's normal error (degrees, after Align) with the
+  estimator's normals or normals derived from its depth, against Phi's seconds per frame: the
+  ``*_validation`` series on train-split clips choose the option (``chosen``), the others report it on the
+  held-out test clips;
 * ``phi_seconds_per_frame``: Phi's seconds per frame at the default resolution (the run's clips) and at the
   paper's 720x480 on a 49-frame orbit rendered by R from analytic buffers of textured spheres on a
   checker ground (structure from motion + estimator inference; the value is the estimator's normal error
@@ -34,6 +36,8 @@ from lightcrafter import clip as clipmod  # noqa: E402
 from lightcrafter import io  # noqa: E402
 from lightcrafter.layout import Layout  # noqa: E402
 
+ESTIMATOR = None  # the weights file of the run's config (recon.estimator.weights), set by main()
+
 
 def _phi_errors(results: Path, normals: str, clips: list[tuple[str, str, str]], work: Path) -> tuple[float, float]:
     """Mean normal error (deg) over clips and Phi seconds per frame with the given normals option."""
@@ -48,7 +52,7 @@ def _phi_errors(results: Path, normals: str, clips: list[tuple[str, str, str]], 
         est, al = work / normals / f"{scene}_{traj}", work / normals / f"{scene}_{traj}_aligned"
         t0 = time.perf_counter()
         try:
-            m = reconstruct_default(Path(L.gt_rgb(scene, traj, src)), est, estimator_path=L.estimator(), fps=24,
+            m = reconstruct_default(Path(L.gt_rgb(scene, traj, src)), est, estimator_path=ESTIMATOR, fps=24,
                                     scene_static=True, settings=DefaultSettings(normals=normals, fov_x_deg=50.0))
         except ReconstructionError:
             continue
@@ -93,31 +97,49 @@ def main() -> int:
     ap.add_argument("--results", type=Path, default=Path("results"))
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--skip-paper-size", action="store_true")
+    ap.add_argument("--config", type=Path, default=None, help="the run's config file (default: config/config.yaml)")
     a = ap.parse_args()
     L = Layout(str(a.results))
     out = a.out or a.results / "bench" / "recon_error.json"
-    if not Path(L.estimator()).is_file():
-        raise SystemExit(f"error: {L.estimator()} not found; run `snakemake results/summary/reconstruction.json` first")
+    global ESTIMATOR
+    from lightcrafter.config import effective_config
+    from lightcrafter.recon.weights import weights_path
+
+    cfg = effective_config([str(a.config)] if a.config else None)
+    ESTIMATOR = weights_path(cfg["recon"]["estimator"]["weights"], L.estimator())
+    if not Path(ESTIMATOR).is_file():
+        raise SystemExit(f"error: {ESTIMATOR} not found; run `snakemake results/summary/reconstruction.json` first")
     summary = io.read_json(L.summary("reconstruction"))
     points = []
-    curve = io.read_json(L.estimator_curve())
+    w = cfg["recon"]["estimator"]["weights"]
+    from lightcrafter.recon.weights import SHIPPED_PROVENANCE
+
+    curve = io.read_json(L.estimator_curve()) if w == "train" else \
+        {"points": io.read_json(SHIPPED_PROVENANCE)["curve"]} if w == "shipped" else {"points": []}
     for p in curve["points"]:
         if p["series"] in ("normal_deg", "depth_abs_rel"):
             points.append({**p, "series": f"estimator_{p['series']}"})
-    test_clips = []
+    clips = {"validation": [], "test": []}  # Phi's settings are chosen on train-split clips, reported on test
     for cid, e in summary["per_clip"].items():
-        if e.get("split") == "test" and "skipped" not in e:
+        split = {"train": "validation", "test": "test"}.get(e.get("split"))
+        if split and "skipped" not in e:
             scene, traj = cid.split("_")
             spec = io.read_json(L.scene_spec(scene))
             t = next(t for t in spec["trajectories"] if t["id"] == traj)
-            test_clips.append((scene, traj, t["source_light"]))
+            clips[split].append((scene, traj, t["source_light"]))
+    chosen_by = {}
     with tempfile.TemporaryDirectory(prefix="lc_recon_bench_") as tmp:
         work = Path(tmp)
-        for normals in ("predicted", "depth"):
-            err, spf = _phi_errors(a.results, normals, test_clips, work)
-            points.append({"series": f"normals_{'from_depth' if normals == 'depth' else 'predicted'}",
-                           "setting": normals, "seconds": round(spf, 4), "value": round(err, 3)})
-            print(f"normals {normals}: {err:.2f} deg, {spf:.3f} s/frame", flush=True)
+        for split in ("validation", "test"):
+            for normals in ("predicted", "depth"):
+                err, spf = _phi_errors(a.results, normals, clips[split], work / split)
+                series = f"normals_{'from_depth' if normals == 'depth' else 'predicted'}" + \
+                    ("_validation" if split == "validation" else "")
+                points.append({"series": series, "setting": normals, "seconds": round(spf, 4), "value": round(err, 3)})
+                if split == "validation":
+                    chosen_by[normals] = err
+                print(f"{split} clips ({len(clips[split])}), normals {normals}: {err:.2f} deg, {spf:.3f} s/frame",
+                      flush=True)
         if summary.get("seconds_per_frame"):
             points.append({"series": "phi_seconds_per_frame", "setting": "default run",
                            "seconds": round(summary["seconds_per_frame"], 4),
@@ -129,7 +151,7 @@ def main() -> int:
 
             views = _paper_size_clip(work)
             t0 = time.perf_counter()
-            m = reconstruct_default(work / "paper_video", work / "paper_clip", estimator_path=L.estimator(), fps=24,
+            m = reconstruct_default(work / "paper_video", work / "paper_clip", estimator_path=ESTIMATOR, fps=24,
                                     scene_static=True, settings=DefaultSettings(fov_x_deg=50.0))
             spf = (time.perf_counter() - t0) / m["num_frames"]
             est_views, _ = clipmod.read_clip(work / "paper_clip")
@@ -142,17 +164,17 @@ def main() -> int:
             points.append({"series": "phi_seconds_per_frame", "setting": "720x480x49", "seconds": round(spf, 4),
                            "value": None})
             print(f"paper size: {spf:.2f} s/frame, registered {paper['registered']}/{paper['frames']}", flush=True)
-    pred = [p for p in points if p["series"] == "normals_predicted"]
-    dep = [p for p in points if p["series"] == "normals_from_depth"]
-    chosen = "predicted" if not dep or not pred or (pred[0]["value"] <= dep[0]["value"]) else "depth"
+    finite = {k: v for k, v in chosen_by.items() if np.isfinite(v)}
+    chosen = min(finite, key=finite.get) if finite else "predicted"
     io.write_json(out, {
         "name": "recon_error", "varied": "estimator training time; normals source; resolution",
         "metric": "normal_deg", "higher_is_better": False,
         "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
-        "chosen": chosen, "chosen_series": f"normals_{'predicted' if chosen == 'predicted' else 'from_depth'}",
+        "chosen": chosen, "chosen_series": f"normals_{'predicted' if chosen == 'predicted' else 'from_depth'}_validation",
         "points": points, "paper_size": paper, "by_motion": summary["by_motion"],
         "moving_camera_frames_registered": summary.get("moving_camera_frames_registered_incl_skipped"),
-        "note": "errors on held-out test clips after Align; estimator curve on held-out recon-split clips",
+        "note": "normals option chosen on train-split clips (*_validation series), reported on held-out test clips, "
+                "after Align; estimator curve on held-out recon-split clips",
     })
     print(f"wrote {out}; better normals: {chosen}")
     return 0
