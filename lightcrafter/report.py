@@ -375,6 +375,7 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
                                                         "seconds", "skipped"]))
     else:
         parts.append(_not_computed("reconstruction summary", f"{rec} missing"))
+    parts.append(_budget_section(results))
 
     # 4. leave-out counts ---------------------------------------------------------------------
     parts.append("<h2 id='leave-out'>Work left out (what a scene does not need)</h2>")
@@ -410,8 +411,8 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
             bench = read_json(b)
         except Exception:  # noqa: BLE001
             continue
-        if not isinstance(bench, dict) or "points" not in bench or "metric" not in bench:
-            continue
+        if not isinstance(bench, dict) or "points" not in bench or "metric" not in bench or "table" in bench:
+            continue  # (a benchmark with a table, e.g. Phi's error budget, has its own section)
         png = out_dir / f"{bench['name']}.png"
         plot_bench(bench, png)
         m = bench.get("machine", {})
@@ -440,6 +441,25 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
     index = out_dir / "index.html"
     write_text(index, "\n".join(p for p in parts if p))
     return index
+
+
+def _budget_section(results: Path) -> str:
+    """Phi's error budget (benchmarks/phi_budget.py): the proxy's dB per buffer component."""
+    f = results / "bench" / "phi_budget.json"
+    head = "<h3>Error budget of &Phi; (where the proxy's decibels go)</h3>"
+    if not f.is_file():
+        return head + _not_computed("error budget", f"{f} missing; run `.venv/bin/python benchmarks/phi_budget.py`")
+    b = read_json(f)
+    rows = [{"row": k, **v} for k, v in b["table"].items() if "psnr_db" in v]
+    missing = [f"{k}: {v['not_computed']}" for k, v in b["table"].items() if "not_computed" in v]
+    return (head + f"<p class='note'>R on the {b['split']} pairs ({b['pairs']}) from ground-truth buffers with one "
+            "component taken from &Phi; (gt+phi:&hellip;), from &Phi;'s buffers with one taken from ground truth "
+            "(phi+gt:&hellip;), and R's own error: the per-frame shadow mesh &Phi;'s clips get (oracle@frame), its "
+            "sampling noise (oracle_vs_16x: the oracle against 16x its samples) and a denoised oracle "
+            "(oracle+oidn). PSNR / SSIM on display values against the Cycles target.</p>"
+            + _table(rows, ["row", "psnr_db", "ssim", "vs_oracle_db", "vs_phi_db"],
+                     {"psnr_db": "PSNR dB", "vs_oracle_db": "dB vs oracle", "vs_phi_db": "dB vs Phi"})
+            + "".join(f"<p class='note'>{_esc(m)}</p>" for m in missing))
 
 
 def _selection_section(evals: dict) -> str:

@@ -1,0 +1,226 @@
+"""Error budget of the reconstruction stack Phi: where the proxy's decibels go.
+
+For every synthetic test pair of a finished run (results/), R renders the target lighting from
+
+* ``oracle``: ground-truth buffers and cameras (the oracle proxy, at the run's ``proxy`` settings);
+* ``gt+phi:<component>``: ground truth with ONE component taken from Phi's aligned clip;
+* ``phi``: Phi's aligned buffers and cameras (the run's proxy);
+* ``phi+gt:<component>``: Phi with ONE component taken from ground truth;
+* R's own error: ``oracle@frame`` (the ground truth rendered with the per-frame shadow mesh that Phi's
+  clips get from ``visibility: auto``), ``oracle@16x`` (16 x ``proxy.spp``; the oracle against it is R's
+  sampling noise) and ``oracle+oidn`` (the oracle through Intel Open Image Denoise, when ``pyoidn``
+  imports; else the row says why it is missing).
+
+Components (lightcrafter.io.Buffers and the clip's cameras): ``cameras`` (K and c2w), ``depth``
+(z-depth where both are surface), ``normals`` (world), ``albedo``, ``roughness_metallic``, ``mask``
+(which pixels are surface: pixels only the donor sees take all of the donor's values there). The target
+lighting is the scene's own on synthetic pairs, so the environment map is not a Phi component here
+(real clips fit it: results/summary/reconstruction.json reports their pseudo-input error).
+
+Scores are PSNR (dB) and SSIM on display values (lightcrafter.io.linear_to_display) against the Cycles
+target, means over pairs of per-frame means. Writes results/bench/phi_budget.json (the benchmark shape of
+docs/architecture.md plus a ``table``) and prints the table::
+
+    .venv/bin/python benchmarks/phi_budget.py [--results results] [--split test] [--max-pairs N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from lightcrafter import io  # noqa: E402
+from lightcrafter.clip import FrameView, read_clip  # noqa: E402
+from lightcrafter.layout import Layout  # noqa: E402
+
+COMPONENTS = ("cameras", "depth", "normals", "albedo", "roughness_metallic", "mask")
+
+
+def swap(base: FrameView, donor: FrameView, component: str) -> FrameView:
+    """``base`` with one component taken from ``donor`` (same frame, same size)."""
+    if component == "cameras":
+        return FrameView(base.buffers, donor.K, donor.c2w, base.key + "#cam")
+    b, d = base.buffers, donor.buffers
+    bv = (b.mask > 0.5) & np.isfinite(b.depth)
+    dv = (d.mask > 0.5) & np.isfinite(d.depth)
+    both = bv & dv
+    out = io.Buffers(depth=b.depth.copy(), normal=b.normal.copy(), albedo=b.albedo.copy(),
+                     roughness=b.roughness.copy(), metallic=b.metallic.copy(), mask=b.mask.copy())
+    if component == "depth":
+        out.depth = np.where(both, d.depth, b.depth).astype(np.float32)
+    elif component == "normals":
+        out.normal = np.where(both[..., None], d.normal, b.normal).astype(np.float32)
+    elif component == "albedo":
+        out.albedo = np.where(both[..., None], d.albedo, b.albedo).astype(np.float32)
+    elif component == "roughness_metallic":
+        out.roughness = np.where(both, d.roughness, b.roughness).astype(np.float32)
+        out.metallic = np.where(both, d.metallic, b.metallic).astype(np.float32)
+    elif component == "mask":
+        only_d = dv & ~bv
+        for k in ("depth", "roughness", "metallic", "mask"):
+            setattr(out, k, np.where(only_d, getattr(d, k), getattr(out, k)).astype(np.float32))
+        for k in ("normal", "albedo"):
+            setattr(out, k, np.where(only_d[..., None], getattr(d, k), getattr(out, k)).astype(np.float32))
+        gone = bv & ~dv
+        out.depth[gone] = np.inf
+        out.mask[gone] = 0.0
+        out.normal[gone] = 0.0
+    else:
+        raise ValueError(f"component {component!r}: use one of {COMPONENTS}")
+    return FrameView(out, base.K, base.c2w, f"{base.key}#{component}")
+
+
+def _display(frames, exposure_ev=0.0) -> np.ndarray:
+    return np.stack([io.linear_to_display(f, exposure_ev) for f in frames])
+
+
+def _scores(video: np.ndarray, target: np.ndarray) -> dict:
+    from lightcrafter import evaluation as ev
+
+    return {"psnr_db": ev.framewise_psnr(video, target).value, "ssim": ev.framewise_ssim(video, target).value}
+
+
+def _oidn(frames: list[np.ndarray]) -> list[np.ndarray] | str:
+    """Denoise linear HDR frames with Intel OIDN (pyoidn), or say why not."""
+    from lightcrafter.proxy.denoise import available, denoise_hdr
+
+    why = available()
+    return f"not computed: {why}" if why else [denoise_hdr(f) for f in frames]
+
+
+def budget_rows(gt_views, phi_views, lighting, settings, scene_static: bool, work: Path):
+    """(row name, settings, views) for every row of the budget of one clip."""
+    from lightcrafter.proxy.clip import resolve_visibility
+
+    s_gt = resolve_visibility(settings, scene_static, True)
+    s_phi = resolve_visibility(settings, scene_static, False)
+    rows = [("oracle", s_gt, gt_views), ("oracle@frame", replace(s_gt, visibility="frame"), gt_views),
+            ("oracle@16x", replace(s_gt, spp=settings.spp * 16), gt_views), ("phi", s_phi, phi_views)]
+    for c in COMPONENTS:
+        # a mixed clip whose depth or cameras come from Phi is as inconsistent over frames as Phi's
+        phi_geom = c in ("cameras", "depth", "mask")
+        rows.append((f"gt+phi:{c}", s_phi if phi_geom else s_gt, [swap(g, p, c) for g, p in zip(gt_views, phi_views)]))
+        rows.append((f"phi+gt:{c}", s_phi, [swap(p, g, c) for g, p in zip(gt_views, phi_views)]))
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--results", type=Path, default=Path("results"))
+    ap.add_argument("--config", type=Path, default=None, help="the run's config file (default: config/config.yaml)")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--max-pairs", type=int, default=None)
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--strips", type=Path, default=None, help="folder for a PNG strip per pair: input | oracle "
+                    "proxy | Phi proxy | target (default: beside --out, phi_budget_strips/)")
+    a = ap.parse_args()
+    from lightcrafter.proxy import render_settings
+    from lightcrafter.proxy.clip import render_views
+    from lightcrafter.proxy.lighting import lighting_from_spec
+
+    L = Layout(str(a.results))
+    out = a.out or a.results / "bench" / "phi_budget.json"
+    cfg = _run_config(a)
+    settings = render_settings(cfg["proxy"])
+    specs = sorted(Path(a.results, "scenes").glob("*/scene.json"))
+    pairs = []
+    for sp in specs:
+        spec = io.read_json(sp)
+        if spec.get("split") != a.split:
+            continue
+        for t in spec["trajectories"]:
+            for light in t.get("target_lights", []):
+                pairs.append((spec, t, light))
+    pairs = pairs[: a.max_pairs] if a.max_pairs else pairs
+    if not pairs:
+        raise SystemExit(f"error: no {a.split} pairs under {a.results}/scenes; run the default target first (make run)")
+    from lightcrafter.refiner.strip import write_strip
+
+    strips = a.strips or out.parent / "phi_budget_strips"
+    per_pair, seconds = [], {}
+    with tempfile.TemporaryDirectory(prefix="lc_phi_budget_") as tmp:
+        for spec, t, light in pairs:
+            sid, tid = spec["scene_id"], t["id"]
+            aligned = Path(L.aligned_clip_manifest(sid, tid))
+            if not aligned.is_file() or io.read_json(aligned).get("skipped"):
+                print(f"{sid}_{tid}: Phi left it out; not in the budget", flush=True)
+                continue
+            gt_views, info = read_clip(L.gt_clip(sid, tid))
+            phi_views, _ = read_clip(L.aligned_clip(sid, tid))
+            tfolder = Path(L.gt_rgb(sid, tid, light))
+            target = _display([io.read_rgb_exr(tfolder / f"{i:04d}.exr") for i in range(len(gt_views))])
+            lighting = lighting_from_spec(spec, light, tid, where=str(L.scene_spec(sid)))
+            row = {"pair_id": f"{sid}_{tid}_{light}", "motion": t.get("motion"), "rows": {}}
+            videos = {}
+            for name, s, views in budget_rows(gt_views, phi_views, lighting, settings, info.scene_static, Path(tmp)):
+                t0 = time.perf_counter()
+                frames, _, _ = render_views(views, lighting, s, Path(tmp) / row["pair_id"] / name.replace(":", "_"),
+                                            cache=False)
+                seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - t0
+                videos[name] = _display(frames)
+                row["rows"][name] = _scores(videos[name], target)
+                if name == "oracle":
+                    den = _oidn(frames)
+                    row["rows"]["oracle+oidn"] = den if isinstance(den, str) else _scores(_display(den), target)
+                if name == "oracle@16x":
+                    row["rows"]["oracle_vs_16x"] = _scores(videos["oracle"], videos[name])
+                print(f"{row['pair_id']} {name}: {row['rows'][name]['psnr_db']:.2f} dB "
+                      f"SSIM {row['rows'][name]['ssim']:.3f}", flush=True)
+            src = Path(L.gt_rgb(sid, tid, t["source_light"]))
+            cols = [("input", _display([io.read_rgb_exr(src / f"{i:04d}.exr") for i in range(len(gt_views))])),
+                    ("oracle proxy", videos["oracle"]), ("Phi proxy", videos["phi"]), ("target", target)]
+            write_strip(strips / f"{row['pair_id']}.png", cols)
+            per_pair.append(row)
+    if not per_pair:
+        raise SystemExit(f"error: every {a.split} clip was left out by Phi; nothing to budget")
+    names = list(per_pair[0]["rows"])
+    table = {}
+    for n in names:
+        vals = [p["rows"][n] for p in per_pair if isinstance(p["rows"].get(n), dict)]
+        if not vals:
+            table[n] = {"not_computed": per_pair[0]["rows"][n]}
+            continue
+        table[n] = {k: float(np.mean([v[k] for v in vals])) for k in ("psnr_db", "ssim")}
+    ref = table["oracle"]["psnr_db"], table["phi"]["psnr_db"]
+    for n, r in table.items():
+        if "psnr_db" in r:
+            r["vs_oracle_db"] = r["psnr_db"] - ref[0]
+            r["vs_phi_db"] = r["psnr_db"] - ref[1]
+    points = [{"series": n, "setting": n, "seconds": round(seconds.get(n, 0.0), 2), "value": r.get("psnr_db")}
+              for n, r in table.items()]
+    io.write_json(out, {
+        "name": "phi_budget", "varied": "which buffer component comes from Phi and which from ground truth",
+        "metric": "psnr_db", "higher_is_better": True, "split": a.split, "pairs": len(per_pair),
+        "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
+        "proxy": cfg["proxy"], "table": table, "per_pair": per_pair, "points": points,
+        "note": "PSNR/SSIM on display values against the Cycles target; oracle_vs_16x is R's sampling noise "
+                "(the oracle against 16x its samples), not a comparison with the target",
+    })
+    print(f"\n{'row':28s} {'PSNR dB':>8s} {'SSIM':>6s} {'vs oracle':>9s} {'vs phi':>7s}")
+    for n, r in table.items():
+        if "psnr_db" in r:
+            print(f"{n:28s} {r['psnr_db']:8.2f} {r['ssim']:6.3f} {r['vs_oracle_db']:+9.2f} {r['vs_phi_db']:+7.2f}")
+        else:
+            print(f"{n:28s} {r['not_computed']}")
+    print(f"wrote {out} ({len(per_pair)} pairs)")
+    return 0
+
+
+def _run_config(a) -> dict:
+    from lightcrafter.config import effective_config
+
+    return effective_config([str(a.config)] if a.config else None)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""Phi's error budget (benchmarks/phi_budget.py): one component swapped at a time, nothing else."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lightcrafter import io
+from lightcrafter.clip import FrameView
+
+spec = importlib.util.spec_from_file_location("phi_budget", Path(__file__).resolve().parents[1] / "benchmarks" /
+                                              "phi_budget.py")
+budget = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(budget)
+
+H, W = 6, 8
+
+
+def _view(seed: int, hole: slice) -> FrameView:
+    rng = np.random.default_rng(seed)
+    mask = np.ones((H, W), np.float32)
+    mask[hole] = 0
+    n = rng.normal(size=(H, W, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    b = io.Buffers(depth=np.where(mask > 0, rng.uniform(1, 5, (H, W)), np.inf).astype(np.float32),
+                   normal=np.where(mask[..., None] > 0, n, 0).astype(np.float32),
+                   albedo=rng.random((H, W, 3)).astype(np.float32), roughness=rng.random((H, W)).astype(np.float32),
+                   metallic=rng.random((H, W)).astype(np.float32), mask=mask)
+    return FrameView(b, np.eye(3) * (seed + 1), np.eye(4) * (seed + 2), f"v{seed}")
+
+
+FIELDS = {"depth": ["depth"], "normals": ["normal"], "albedo": ["albedo"], "roughness_metallic": ["roughness", "metallic"]}
+
+
+@pytest.mark.parametrize("component", list(FIELDS))
+def test_a_buffer_component_comes_from_the_donor_where_both_are_surface_and_nothing_else_changes(component):
+    base, donor = _view(0, np.s_[0, :]), _view(1, np.s_[:, 0])
+    out = budget.swap(base, donor, component)
+    both = (base.buffers.mask > 0) & (donor.buffers.mask > 0)
+    for k in ("depth", "normal", "albedo", "roughness", "metallic", "mask"):
+        got, b, d = getattr(out.buffers, k), getattr(base.buffers, k), getattr(donor.buffers, k)
+        if k in FIELDS[component]:
+            np.testing.assert_array_equal(got[both], d[both])
+            np.testing.assert_array_equal(got[~both], b[~both])
+        else:
+            np.testing.assert_array_equal(got, b)
+    assert out.K is base.K and out.c2w is base.c2w
+
+
+def test_mask_swap_takes_the_donors_surface_pixels_and_drops_the_ones_it_lacks():
+    base, donor = _view(0, np.s_[0, :]), _view(1, np.s_[:, 0])
+    out = budget.swap(base, donor, "mask").buffers
+    np.testing.assert_array_equal(out.mask > 0, donor.buffers.mask > 0)
+    assert np.isinf(out.depth[:, 0]).all()  # the donor's hole
+    np.testing.assert_array_equal(out.albedo[0, 1:], donor.buffers.albedo[0, 1:])  # only the donor sees row 0
+    np.testing.assert_array_equal(out.albedo[1:, 1:], base.buffers.albedo[1:, 1:])
+
+
+def test_camera_swap_and_identity():
+    base, donor = _view(0, np.s_[0, :]), _view(1, np.s_[:, 0])
+    cam = budget.swap(base, donor, "cameras")
+    assert cam.buffers is base.buffers and cam.K is donor.K and cam.c2w is donor.c2w
+    for c in budget.COMPONENTS:
+        same = budget.swap(base, base, c).buffers
+        for k in ("depth", "normal", "albedo", "roughness", "metallic", "mask"):
+            np.testing.assert_array_equal(getattr(same, k), getattr(base.buffers, k))
+    with pytest.raises(ValueError, match="component"):
+        budget.swap(base, donor, "lighting")
