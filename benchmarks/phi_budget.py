@@ -27,6 +27,7 @@ docs/architecture.md plus a ``table``) and prints the table::
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -120,6 +121,10 @@ def main() -> int:
     ap.add_argument("--config", type=Path, default=None, help="the run's config file (default: config/config.yaml)")
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-pairs", type=int, default=None)
+    ap.add_argument("--rows", default=None, help="comma-separated rows to render (default: all), e.g. oracle,phi")
+    ap.add_argument("--phi-settings", default=None, help="JSON of recon settings (DefaultSettings fields) over the "
+                    "run's: Phi is re-run on each clip's source video with them and aligned (default: the run's "
+                    "aligned clips)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--strips", type=Path, default=None, help="folder for a PNG strip per pair: input | oracle "
                     "proxy | Phi proxy | target (default: beside --out, phi_budget_strips/)")
@@ -147,6 +152,7 @@ def main() -> int:
     from lightcrafter.refiner.strip import write_strip
 
     strips = a.strips or out.parent / "phi_budget_strips"
+    rows_wanted = set(a.rows.split(",")) if a.rows else None
     per_pair, seconds = [], {}
     with tempfile.TemporaryDirectory(prefix="lc_phi_budget_") as tmp:
         for spec, t, light in pairs:
@@ -156,13 +162,21 @@ def main() -> int:
                 print(f"{sid}_{tid}: Phi left it out; not in the budget", flush=True)
                 continue
             gt_views, info = read_clip(L.gt_clip(sid, tid))
-            phi_views, _ = read_clip(L.aligned_clip(sid, tid))
+            if a.phi_settings is not None:
+                aligned_dir = _rerun_phi(L, cfg, sid, tid, t, json.loads(a.phi_settings), Path(tmp) / "phi")
+                if aligned_dir is None:
+                    continue
+                phi_views, _ = read_clip(aligned_dir)
+            else:
+                phi_views, _ = read_clip(L.aligned_clip(sid, tid))
             tfolder = Path(L.gt_rgb(sid, tid, light))
             target = _display([io.read_rgb_exr(tfolder / f"{i:04d}.exr") for i in range(len(gt_views))])
             lighting = lighting_from_spec(spec, light, tid, where=str(L.scene_spec(sid)))
             row = {"pair_id": f"{sid}_{tid}_{light}", "motion": t.get("motion"), "rows": {}}
             videos = {}
             for name, s, views in budget_rows(gt_views, phi_views, lighting, settings, info.scene_static, Path(tmp)):
+                if rows_wanted and name not in rows_wanted:
+                    continue
                 t0 = time.perf_counter()
                 frames, _, _ = render_views(views, lighting, s, Path(tmp) / row["pair_id"] / name.replace(":", "_"),
                                             cache=False)
@@ -177,9 +191,9 @@ def main() -> int:
                 print(f"{row['pair_id']} {name}: {row['rows'][name]['psnr_db']:.2f} dB "
                       f"SSIM {row['rows'][name]['ssim']:.3f}", flush=True)
             src = Path(L.gt_rgb(sid, tid, t["source_light"]))
-            cols = [("input", _display([io.read_rgb_exr(src / f"{i:04d}.exr") for i in range(len(gt_views))])),
-                    ("oracle proxy", videos["oracle"]), ("Phi proxy", videos["phi"]), ("target", target)]
-            write_strip(strips / f"{row['pair_id']}.png", cols)
+            cols = [("input", _display([io.read_rgb_exr(src / f"{i:04d}.exr") for i in range(len(gt_views))]))]
+            cols += [(label, videos[k]) for k, label in (("oracle", "oracle proxy"), ("phi", "Phi proxy")) if k in videos]
+            write_strip(strips / f"{row['pair_id']}.png", cols + [("target", target)])
             per_pair.append(row)
     if not per_pair:
         raise SystemExit(f"error: every {a.split} clip was left out by Phi; nothing to budget")
@@ -191,11 +205,11 @@ def main() -> int:
             table[n] = {"not_computed": per_pair[0]["rows"][n]}
             continue
         table[n] = {k: float(np.mean([v[k] for v in vals])) for k in ("psnr_db", "ssim")}
-    ref = table["oracle"]["psnr_db"], table["phi"]["psnr_db"]
+    ref = table.get("oracle", {}).get("psnr_db"), table.get("phi", {}).get("psnr_db")
     for n, r in table.items():
         if "psnr_db" in r:
-            r["vs_oracle_db"] = r["psnr_db"] - ref[0]
-            r["vs_phi_db"] = r["psnr_db"] - ref[1]
+            r["vs_oracle_db"] = None if ref[0] is None else r["psnr_db"] - ref[0]
+            r["vs_phi_db"] = None if ref[1] is None else r["psnr_db"] - ref[1]
     points = [{"series": n, "setting": n, "seconds": round(seconds.get(n, 0.0), 2), "value": r.get("psnr_db")}
               for n, r in table.items()]
     io.write_json(out, {
@@ -209,11 +223,38 @@ def main() -> int:
     print(f"\n{'row':28s} {'PSNR dB':>8s} {'SSIM':>6s} {'vs oracle':>9s} {'vs phi':>7s}")
     for n, r in table.items():
         if "psnr_db" in r:
-            print(f"{n:28s} {r['psnr_db']:8.2f} {r['ssim']:6.3f} {r['vs_oracle_db']:+9.2f} {r['vs_phi_db']:+7.2f}")
+            d = [f"{r[k]:+9.2f}" if r[k] is not None else f"{'-':>9s}" for k in ("vs_oracle_db", "vs_phi_db")]
+            print(f"{n:28s} {r['psnr_db']:8.2f} {r['ssim']:6.3f} {d[0]} {d[1]}")
         else:
             print(f"{n:28s} {r['not_computed']}")
     print(f"wrote {out} ({len(per_pair)} pairs)")
     return 0
+
+
+def _rerun_phi(L, cfg: dict, sid: str, tid: str, traj: dict, over: dict, work: Path) -> Path | None:
+    """Phi (default backend, the run's settings with ``over``) on the clip's source video, aligned to ground
+    truth; returns the aligned clip folder, or None when Phi leaves the clip out."""
+    from lightcrafter.recon.align import align_clip
+    from lightcrafter.recon.cameras import ReconstructionError
+    from lightcrafter.recon.default import DefaultSettings, reconstruct_default
+    from lightcrafter.recon.weights import weights_path
+
+    r = cfg["recon"]
+    base = {"fov_x_deg": r["fov_x_deg"] or cfg["scenes"]["fov_x_deg"], "normals": r["normals"],
+            "depth_fit": r["depth_fit"], "sfm": r["sfm"],
+            **{k: r[k] for k in ("max_hole_fraction", "ground_plane", "ground_plane_tol_rel", "ground_plane_max_tilt_deg")}}
+    est, al = work / f"{sid}_{tid}", work / f"{sid}_{tid}_aligned"
+    try:
+        reconstruct_default(Path(L.gt_rgb(sid, tid, traj["source_light"])), est,
+                            estimator_path=weights_path(r["estimator"]["weights"], L.estimator()),
+                            fps=cfg["scenes"]["fps"],
+                            scene_static=traj.get("scene_static", traj.get("motion") != "dynamic_moving"),
+                            settings=DefaultSettings.from_dict({**base, **over}), name=f"{sid}_{tid}")
+    except ReconstructionError as exc:
+        print(f"{sid}_{tid}: {exc}", flush=True)
+        return None
+    align_clip(est, L.gt_clip(sid, tid), al)
+    return al
 
 
 def _run_config(a) -> dict:

@@ -155,3 +155,19 @@ def test_phi_on_a_noise_only_video_reports_the_failure(tmp_path):
                             settings=DefaultSettings(fov_x_deg=50.0), name="noise_clip")
     assert "\n" not in str(exc.value)
     assert not (tmp_path / "clip" / "buffers.json").exists()
+
+
+def test_holes_of_the_mask_are_filled_and_the_sky_is_kept():
+    from lightcrafter.recon.default import fill_from_nearest, hole_pixels
+
+    valid = np.ones((20, 30), bool)
+    valid[:5] = False  # sky: touches the border, 25 % of the frame
+    valid[10:12, 10:12] = False  # an enclosed hole
+    valid[19, 29] = False  # a one-pixel notch at the border: smaller than 1 % of the frame
+    holes = hole_pixels(valid, 0.01)
+    assert holes[10:12, 10:12].all() and holes[19, 29] and not holes[:5].any()
+    assert not hole_pixels(valid, 0.0).any()
+    vals = np.where(valid, np.arange(600.0).reshape(20, 30), np.nan)
+    filled = fill_from_nearest(vals, valid, holes)
+    assert np.isfinite(filled[holes]).all() and np.isnan(filled[:5]).all()
+    assert filled[19, 29] in (vals[18, 29], vals[19, 28])

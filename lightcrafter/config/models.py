@@ -185,6 +185,12 @@ class SfM(Section):
     static_motion_px: float = Field(0.8, description="median feature motion (pixels) under which the camera is "
                                     "static (negative: never static)")
     threads: PositiveInt = Field(1, description="COLMAP threads (1 = bit-reproducible)")
+    upscale: PositiveInt = Field(1, le=4, description="frames are enlarged this many times (bicubic) before feature "
+                                 "extraction: small frames give SIFT more keypoints; intrinsics and observations stay "
+                                 "in the video's pixels")
+    init_min_tri_angle_deg: PositiveFloat = Field(16.0, description="COLMAP's smallest triangulation angle of the "
+                                                  "initial image pair (degrees); short orbits need less than its 16")
+    abs_pose_min_num_inliers: PositiveInt = Field(30, description="COLMAP's fewest 2D-3D inliers to register a frame")
 
 
 class Estimator(Section):
@@ -209,6 +215,10 @@ class Estimator(Section):
     keep_best: bool = Field(True, description="keep the step with the lowest validation normal error on held-out "
                             "recon-split clips")
     seed: NonNegativeInt = Field(0, description="seed of initialisation and crops")
+    augment_ev: NonNegativeFloat = Field(0.0, description="exposure augmentation: each training crop's radiance is "
+                                         "scaled by 2^u EV, u uniform in [-augment_ev, augment_ev] (display values "
+                                         "re-encoded; targets unchanged), so the estimator does not read brightness "
+                                         "as albedo; 0 = off")
 
 
 class PaperStackCommands(Section):
@@ -270,6 +280,17 @@ class Recon(Section):
                                                    "from its depth (default backend)")
     depth_fit: Literal["scale", "affine"] = Field("scale", description="per-frame fit of the estimator's depth to "
                                                   "the SfM points (default backend)")
+    max_hole_fraction: NonNegativeFloat = Field(0.0, le=1.0, description="default backend: non-surface regions "
+                                                "enclosed by surface, or smaller than this fraction of the frame, are "
+                                                "holes of the estimator's mask, filled from the nearest surface pixel "
+                                                "(counted in the clip manifest's phi.hole_pixels_filled); 0 = off")
+    ground_plane: bool = Field(False, description="default backend: the dominant supporting plane (RANSAC over every "
+                               "frame's upward-facing points) gives the pixels on it its depth and normal, and the "
+                               "world its up direction (lightcrafter.recon.default.snap_to_ground_plane)")
+    ground_plane_tol_rel: PositiveFloat = Field(0.05, description="a pixel is on the plane within this fraction of "
+                                                "its depth")
+    ground_plane_max_tilt_deg: PositiveFloat = Field(25.0, lt=90, description="largest angle between a pixel's "
+                                                     "normal (and the plane's) and the up direction")
     skip_failed: bool = Field(True, description="a video Phi cannot reconstruct is left out and counted instead of "
                               "stopping the run")
     sfm: SfM = Field(default_factory=SfM)

@@ -150,13 +150,21 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
     img_dir = tmp / "images"
     img_dir.mkdir()
     names = [f"{i:05d}.png" for i in range(n)]
+    up = int(s.upscale)
     for f, nm in zip(frames, names):
+        if up > 1:
+            import cv2
+
+            f = cv2.resize(np.ascontiguousarray(f), (w * up, h * up), interpolation=cv2.INTER_CUBIC)
         iio.imwrite(img_dir / nm, f)
+    Ku = K.copy()  # COLMAP works in the enlarged pixels: pixel centres map as u' = up * (u + 0.5) - 0.5
+    Ku[:2, :2] *= up
+    Ku[:2, 2] = up * (K[:2, 2] + 0.5) - 0.5
     db = tmp / "database.db"
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "PINHOLE"
     # COLMAP's pixel centres sit at +0.5 of OpenCV's.
-    reader.camera_params = f"{K[0, 0]!r},{K[1, 1]!r},{K[0, 2] + 0.5!r},{K[1, 2] + 0.5!r}"
+    reader.camera_params = f"{Ku[0, 0]!r},{Ku[1, 1]!r},{Ku[0, 2] + 0.5!r},{Ku[1, 2] + 0.5!r}"
     extract = pycolmap.FeatureExtractionOptions()
     extract.num_threads = s.threads
     extract.use_gpu = False
@@ -180,6 +188,8 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
     opts.ba_refine_extra_params = False
     opts.num_threads = s.threads
     opts.random_seed = 0
+    opts.mapper.init_min_tri_angle = float(s.init_min_tri_angle_deg)
+    opts.mapper.abs_pose_min_num_inliers = int(s.abs_pose_min_num_inliers)
     models = pycolmap.incremental_mapping(db, img_dir, tmp / "sparse", options=opts)
     if not models:
         raise ReconstructionError(f"{name}: structure from motion found no model (too little texture or parallax); "
@@ -206,7 +216,7 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
         uv, ids = [], []
         for p2d in im.points2D:
             if p2d.has_point3D() and p2d.point3D_id in pid_index:
-                uv.append(np.asarray(p2d.xy, np.float64) - 0.5)
+                uv.append((np.asarray(p2d.xy, np.float64)) / up - 0.5)
                 ids.append(pid_index[p2d.point3D_id])
         observations[i] = (np.asarray(uv).reshape(-1, 2), np.asarray(ids, np.int64))
     n_reg = int(registered.sum())

@@ -15,7 +15,11 @@ transform, lightcrafter.io.linear_to_display, as a camera would record them):
    ``normals: depth``: cross product of the unprojected points' image-space differences);
 5. a Z-up world: the dominant direction of the predicted surface normals (the ground dominates
    these scenes) is rotated onto +Z (the smallest rotation), for cameras and normals alike;
-6. a static camera over a static scene gives ONE buffer frame: the per-frame predictions are averaged
+6. optionally (``ground_plane``), the dominant supporting plane: a RANSAC plane through every frame's
+   unprojected upward-facing surface points; pixels on it take its depth and normal, and its normal becomes
+   the world's +Z (:func:`snap_to_ground_plane`);
+7. holes of the mask (``max_hole_fraction``) are filled from the nearest surface pixel;
+8. a static camera over a static scene gives ONE buffer frame: the per-frame predictions are averaged
    (median depth, mean normal/materials), so R builds its meshes once.
 
 Nothing here reads ground truth. Units are "arbitrary" (SfM scale).
@@ -40,7 +44,11 @@ class DefaultSettings:
     else SfM) | static (known fixed camera: no SfM); normals: predicted | depth; depth_fit: scale |
     affine (per-frame fit of the estimator's depth to the SfM points, see :func:`depth_fits`);
     min_points: SfM points a frame needs for its own depth scale; mask_threshold: estimator mask
-    probability above which a pixel is a surface; sfm: SfMSettings fields; exposure_ev: display
+    probability above which a pixel is a surface; max_hole_fraction: non-surface components enclosed by
+    surface or smaller than this fraction of the frame are holes, filled from the nearest surface pixel
+    (:func:`hole_pixels`; 0 = off); ground_plane: snap the dominant supporting plane
+    (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
+    ``ground_plane_max_tilt_deg``); sfm: SfMSettings fields; exposure_ev: display
     exposure applied before estimation."""
 
     fov_x_deg: float = 50.0
@@ -49,6 +57,10 @@ class DefaultSettings:
     depth_fit: str = "scale"
     min_points: int = 8
     mask_threshold: float = 0.5
+    max_hole_fraction: float = 0.0
+    ground_plane: bool = False
+    ground_plane_tol_rel: float = 0.05
+    ground_plane_max_tilt_deg: float = 25.0
     exposure_ev: float = 0.0
     sfm: dict = field(default_factory=dict)
 
@@ -160,6 +172,129 @@ def normals_from_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.where(flip[..., None], -n, n)
 
 
+def hole_pixels(valid: np.ndarray, max_fraction: float) -> np.ndarray:
+    """Boolean (H, W): non-surface pixels that are holes in the surface rather than environment: connected
+    (4-neighbour) non-surface components that do not touch the image border, or that cover less than
+    ``max_fraction`` of the frame. None when ``max_fraction`` <= 0."""
+    from scipy import ndimage
+
+    holes = np.zeros_like(valid, bool)
+    if max_fraction <= 0 or valid.all() or not valid.any():
+        return holes
+    lab, n = ndimage.label(~valid)
+    sizes = np.bincount(lab.ravel(), minlength=n + 1)
+    edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    small = sizes < max_fraction * valid.size
+    enclosed = np.ones(n + 1, bool)
+    enclosed[edge] = False
+    fill = small | enclosed
+    fill[0] = False
+    return fill[lab]
+
+
+def fill_from_nearest(values: np.ndarray, valid: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """``values`` (H, W[, C]) with the pixels ``where`` set to their nearest ``valid`` pixel's value."""
+    from scipy import ndimage
+
+    if not where.any():
+        return values
+    _, (ri, ci) = ndimage.distance_transform_edt(~valid, return_indices=True)
+    out = values.copy()
+    out[where] = values[ri[where], ci[where]]
+    return out
+
+
+def fit_ground_plane(points: np.ndarray, dist: np.ndarray, tol_rel: float, max_tilt_deg: float,
+                     iters: int = 256, seed: int = 0) -> tuple[np.ndarray, float, float] | None:
+    """RANSAC plane n . x = o through world points (M, 3) of a Z-up world: n a unit normal within
+    ``max_tilt_deg`` of +Z (facing up); a point is an inlier when its distance to the plane is below
+    ``tol_rel`` x its distance from the camera ``dist`` (M,) (depth noise grows with distance). The best
+    hypothesis is refined by least squares on its inliers (SVD). Returns (n, o, inlier fraction) or None
+    when fewer than 3 points. Seeded: the same points give the same plane."""
+    if len(points) < 3:
+        return None
+    rng = np.random.default_rng(seed)
+    cos_max = np.cos(np.radians(max_tilt_deg))
+    tol = tol_rel * dist
+    best = (-1, None)
+    for _ in range(iters):
+        a, b, c = points[rng.choice(len(points), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        ln = np.linalg.norm(n)
+        if ln < 1e-12:
+            continue
+        n = n / ln * np.sign(n[2] or 1.0)
+        if n[2] < cos_max:
+            continue
+        inl = np.abs(points @ n - n @ a) < tol
+        if inl.sum() > best[0]:
+            best = (int(inl.sum()), inl)
+    if best[1] is None or best[0] < 3:
+        return None
+    for _ in range(2):  # least-squares refinement on the inliers, then their inliers again
+        P = points[best[1]]
+        c0 = P.mean(0)
+        n = np.linalg.svd(P - c0, full_matrices=False)[2][-1]
+        n = n * np.sign(n[2] or 1.0)
+        o = float(n @ c0)
+        inl = np.abs(points @ n - o) < tol
+        if inl.sum() < 3:
+            break
+        best = (int(inl.sum()), inl)
+    return n, o, best[0] / len(points)
+
+
+def plane_depth(n: np.ndarray, o: float, K: np.ndarray, c2w: np.ndarray, h: int, w: int) -> np.ndarray:
+    """z-depth (H, W) at which each pixel's camera ray meets the plane n . x = o (inf where it does not, in
+    front of the camera)."""
+    from lightcrafter.proxy.geometry import camera_rays
+
+    rays_w = camera_rays(K, h, w) @ np.asarray(c2w)[:3, :3].T  # world direction per unit z-depth
+    denom = rays_w @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (o - n @ np.asarray(c2w)[:3, 3]) / denom
+    return np.where(np.isfinite(z) & (z > 0), z, np.inf)
+
+
+def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.ndarray, K: np.ndarray,
+                         c2w: np.ndarray, tol_rel: float, max_tilt_deg: float, max_points: int = 20000):
+    """The dominant supporting plane of a Z-up clip, from the depth maps of every frame (metres of the
+    clip's units): pixels whose points lie within ``tol_rel`` of the plane (relative to their depth) and whose
+    normals are within ``max_tilt_deg`` of the plane's take the plane's depth and normal exactly (a
+    multi-view estimate of the ground replaces the per-frame monocular one: no tilt, no depth noise to cast
+    self-shadows). Returns (depth, n_world, plane normal or None, info)."""
+    from lightcrafter.proxy.geometry import unproject
+
+    nf, h, w = depth.shape
+    rng = np.random.default_rng(0)
+    cos_max = np.cos(np.radians(max_tilt_deg))
+    pts, dists = [], []
+    for i in range(nf):
+        ok = surface[i] & np.isfinite(depth[i]) & (n_world[i][..., 2] > cos_max)
+        P = unproject(np.where(ok, depth[i], np.inf), K[i], c2w[i])[ok]
+        dd = depth[i][ok]
+        k = rng.choice(len(P), min(len(P), max(1, max_points // nf)), replace=False) if len(P) else []
+        pts.append(P[k])
+        dists.append(dd[k])
+    P, D = np.concatenate(pts), np.concatenate(dists)
+    fit = fit_ground_plane(P, D, tol_rel, max_tilt_deg)
+    if fit is None:
+        return depth, n_world, None, {"ground_plane": None}
+    n, o, frac = fit
+    depth, n_world = depth.copy(), n_world.copy()
+    snapped = 0
+    for i in range(nf):
+        zp = plane_depth(n, o, K[i], c2w[i], h, w)
+        on = surface[i] & np.isfinite(zp) & (np.abs(depth[i] - zp) < tol_rel * zp) & \
+            ((n_world[i] @ n) > np.cos(np.radians(max_tilt_deg)))
+        depth[i][on] = zp[on]
+        n_world[i][on] = n
+        snapped += int(on.sum())
+    info = {"ground_plane": {"normal": np.round(n, 6).tolist(), "offset": round(o, 6), "inlier_fraction": round(frac, 4),
+                             "pixels_snapped_fraction": round(snapped / max(int(surface.sum()), 1), 4)}}
+    return depth, n_world, n, info
+
+
 def up_rotation(up: np.ndarray) -> np.ndarray:
     """Smallest rotation taking unit vector ``up`` onto +Z (Rodrigues)."""
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
@@ -214,12 +349,23 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     c2w[:, :3, :3] = Q @ R_c2w
     c2w[:, :3, 3] = track.c2w[:, :3, 3] @ Q.T
     n_world = n_world @ Q.T
+    plane_info = {}
+    if settings.ground_plane:
+        depth, n_world, n_plane, plane_info = snap_to_ground_plane(
+            depth, n_world, mask, track.K, c2w, settings.ground_plane_tol_rel, settings.ground_plane_max_tilt_deg)
+        if n_plane is not None:  # the plane's normal is the world's up: rotate it onto +Z exactly
+            Q2 = up_rotation(n_plane)
+            c2w[:, :3, :3] = Q2 @ c2w[:, :3, :3]
+            c2w[:, :3, 3] = c2w[:, :3, 3] @ Q2.T
+            n_world = n_world @ Q2.T
     one = track.static and scene_static
     inputs = {"what": "phi-default", "frames": _frames_identity(frames_dir, n), "settings": asdict(settings),
               "estimator": _file_digest(estimator_path), "scene_static": scene_static}
     frames = clipmod.buffer_frames(out_clip, inputs)
     distinct = [0] if one else list(range(n))
     todo = frames.missing(distinct, io.read_buffers)
+
+    filled_per_frame: list[int] = []
 
     def buffers_of(idx) -> io.Buffers:
         sel = slice(None) if one else slice(idx, idx + 1)
@@ -228,17 +374,30 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
         nn_ = n_world[sel].mean(0)
         nn_ /= np.maximum(np.linalg.norm(nn_, axis=-1, keepdims=True), 1e-9)
         ok = m & np.isfinite(d) & (d > 0)
+        holes = hole_pixels(ok, settings.max_hole_fraction)
+        if holes.any():  # surface the estimator's mask missed: nearest surface pixel's buffers
+            d = fill_from_nearest(np.where(ok, d, 0.0), ok, holes)
+            nn_ = fill_from_nearest(np.where(ok[..., None], nn_, 0.0), ok, holes)
+            albedo = fill_from_nearest(pred["albedo"][sel].mean(0), ok, holes)
+            rough = fill_from_nearest(pred["roughness"][sel].mean(0), ok, holes)
+            metal = fill_from_nearest(pred["metallic"][sel].mean(0), ok, holes)
+            ok = ok | holes
+        else:
+            albedo, rough, metal = (pred[k][sel].mean(0) for k in ("albedo", "roughness", "metallic"))
+        filled_per_frame.append(int(holes.sum()))
         return io.Buffers(depth=np.where(ok, d, np.inf).astype(np.float32),
                           normal=np.where(ok[..., None], nn_, 0.0).astype(np.float32),
-                          albedo=np.where(ok[..., None], pred["albedo"][sel].mean(0), 0.0).astype(np.float32),
-                          roughness=np.where(ok, pred["roughness"][sel].mean(0), 0.0).astype(np.float32),
-                          metallic=np.where(ok, pred["metallic"][sel].mean(0), 0.0).astype(np.float32),
+                          albedo=np.where(ok[..., None], albedo, 0.0).astype(np.float32),
+                          roughness=np.where(ok, rough, 0.0).astype(np.float32),
+                          metallic=np.where(ok, metal, 0.0).astype(np.float32),
                           mask=ok.astype(np.float32))
 
-    for i in todo:
-        frames.stamp()
-        io.write_buffers(frames.path(i), buffers_of(i))
-    info = {**track.info, "depth_fit_per_frame": np.round(fits, 6).tolist(),
+    for i in distinct:  # every distinct frame is built (cheap next to the estimator), so counts do not depend on
+        b = buffers_of(i)  # which frames a resumed run still had to write
+        if i in todo:
+            frames.stamp()
+            io.write_buffers(frames.path(i), b)
+    info = {**track.info, **plane_info, "depth_fit_per_frame": np.round(fits, 6).tolist(), "hole_pixels_filled": sum(filled_per_frame),
             "registered_per_frame": track.registered.tolist()}
     timing = {"cameras_seconds": round(t_cam, 3), "estimator_seconds": round(t_est, 3),
               "seconds": round(time.perf_counter() - t0, 3), "frames": n}
