@@ -168,6 +168,9 @@ class Proxy(Section):
                                                  "(0 = no decimation)")
     sampler: Literal["multijitter", "ldsampler", "independent"] = Field(
         "multijitter", description="Mitsuba sampler plugin")
+    denoiser: Literal["none", "oidn"] = Field("none", description="oidn: every frame R renders goes through Intel "
+                                              "Open Image Denoise (lightcrafter/proxy/denoise.py, pyoidn), as Cycles' "
+                                              "ground truth does (render.denoiser)")
 
 
 # ----------------------------------------------------------------------------- reconstruction
