@@ -171,3 +171,22 @@ def test_holes_of_the_mask_are_filled_and_the_sky_is_kept():
     filled = fill_from_nearest(vals, valid, holes)
     assert np.isfinite(filled[holes]).all() and np.isnan(filled[:5]).all()
     assert filled[19, 29] in (vals[18, 29], vals[19, 28])
+
+
+def test_ground_plane_is_recovered_from_noisy_points_with_outliers_and_degenerate_input_is_refused():
+    from lightcrafter.recon.default import fit_ground_plane
+
+    rng = np.random.default_rng(0)
+    n_true = np.array([0.1, -0.05, 1.0]) / np.linalg.norm([0.1, -0.05, 1.0])
+    xy = rng.uniform(-3, 3, (2000, 2))
+    z = (0.4 - n_true[0] * xy[:, 0] - n_true[1] * xy[:, 1]) / n_true[2]
+    pts = np.c_[xy, z] + rng.normal(0, 0.01, (2000, 3))
+    pts[:600] += rng.uniform(0.2, 1.5, (600, 1)) * [0, 0, 1]  # 30 % outliers above the plane (objects)
+    dist = np.full(2000, 4.0)
+    n, o, frac = fit_ground_plane(pts, dist, 0.02, 25.0)
+    assert np.degrees(np.arccos(n @ n_true)) < 1.0 and abs(o - 0.4) < 0.02 and 0.6 < frac < 0.75
+    assert fit_ground_plane(pts[:2], dist[:2], 0.02, 25.0) is None
+    line = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)]  # collinear: no plane
+    assert fit_ground_plane(line, np.ones(50), 0.02, 25.0) is None
+    wall = np.c_[rng.uniform(-1, 1, 500), np.zeros(500), rng.uniform(0, 2, 500)]  # vertical: not a ground
+    assert fit_ground_plane(wall, np.ones(500), 0.02, 25.0) is None

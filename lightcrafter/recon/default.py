@@ -257,12 +257,14 @@ def plane_depth(n: np.ndarray, o: float, K: np.ndarray, c2w: np.ndarray, h: int,
 
 
 def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.ndarray, K: np.ndarray,
-                         c2w: np.ndarray, tol_rel: float, max_tilt_deg: float, max_points: int = 20000):
+                         c2w: np.ndarray, tol_rel: float, max_tilt_deg: float, min_support: float = 0.25,
+                         max_points: int = 20000):
     """The dominant supporting plane of a Z-up clip, from the depth maps of every frame (metres of the
     clip's units): pixels whose points lie within ``tol_rel`` of the plane (relative to their depth) and whose
     normals are within ``max_tilt_deg`` of the plane's take the plane's depth and normal exactly (a
     multi-view estimate of the ground replaces the per-frame monocular one: no tilt, no depth noise to cast
-    self-shadows). Returns (depth, n_world, plane normal or None, info)."""
+    self-shadows). The plane is used only when its pixels are at least ``min_support`` of the clip's
+    surface pixels (info ``support_fraction``, ``used``). Returns (depth, n_world, plane normal or None, info)."""
     from lightcrafter.proxy.geometry import unproject
 
     nf, h, w = depth.shape
@@ -281,17 +283,21 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     if fit is None:
         return depth, n_world, None, {"ground_plane": None}
     n, o, frac = fit
-    depth, n_world = depth.copy(), n_world.copy()
-    snapped = 0
+    ons = []
     for i in range(nf):
         zp = plane_depth(n, o, K[i], c2w[i], h, w)
         on = surface[i] & np.isfinite(zp) & (np.abs(depth[i] - zp) < tol_rel * zp) & \
             ((n_world[i] @ n) > np.cos(np.radians(max_tilt_deg)))
+        ons.append((on, zp))
+    support = sum(int(on.sum()) for on, _ in ons) / max(int(surface.sum()), 1)
+    info = {"ground_plane": {"normal": np.round(n, 6).tolist(), "offset": round(o, 6), "inlier_fraction": round(frac, 4),
+                             "support_fraction": round(support, 4), "used": support >= min_support}}
+    if support < min_support:  # no plane carries the scene (e.g. a face filling the frame): leave it alone
+        return depth, n_world, None, info
+    depth, n_world = depth.copy(), n_world.copy()
+    for i, (on, zp) in enumerate(ons):
         depth[i][on] = zp[on]
         n_world[i][on] = n
-        snapped += int(on.sum())
-    info = {"ground_plane": {"normal": np.round(n, 6).tolist(), "offset": round(o, 6), "inlier_fraction": round(frac, 4),
-                             "pixels_snapped_fraction": round(snapped / max(int(surface.sum()), 1), 4)}}
     return depth, n_world, n, info
 
 
