@@ -4,8 +4,9 @@
   train_estimator.py --clips gt/s0004/t0/buffers.json ... --videos gt/s0004/t0/rgb/L1.json ... \
       --config-json '{"steps": 600}' --out results/recon/estimator/model.pt --curve results/recon/estimator/curve.json
 
-Clip k is paired with video k (the trajectory's source-light Cycles frames). The last trajectory is held
-out as validation for the error-against-training-time curve (all are used when there is only one).
+Clip k is paired with video k (the trajectory's source-light Cycles frames). Validation for the
+error-against-training-time curve (and the step kept): the last eighth of the scenes when there are 8 or
+more, else the last trajectory (all are used when there is only one).
 """
 
 import argparse
@@ -15,6 +16,18 @@ from pathlib import Path
 import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter.io import DataError
+
+
+def validation_split(pairs: list[tuple[str, str]]) -> tuple[list, list]:
+    """(validation, training) pairs: with 8 or more scenes, every trajectory of the last eighth of the scenes
+    (whole scenes held out: no layout seen in training); with fewer, the last trajectory; with one
+    trajectory, it is both."""
+    scenes = sorted({Path(c).parent.parent.name for c, _ in pairs})
+    if len(scenes) >= 8:
+        held = set(scenes[-(len(scenes) // 8):])
+        return [p for p in pairs if Path(p[0]).parent.parent.name in held], \
+            [p for p in pairs if Path(p[0]).parent.parent.name not in held]
+    return (pairs[-1:], pairs[:-1]) if len(pairs) > 1 else (pairs, pairs)
 
 
 def main() -> int:
@@ -32,8 +45,7 @@ def main() -> int:
         raise DataError(f"{len(a.clips)} clips but {len(a.videos)} videos; pass one source video per clip")
     cfg = est.EstimatorConfig.from_dict(_cli.json_arg(a.config_json))
     pairs = sorted(zip(a.clips, a.videos))
-    val_pairs = pairs[-1:] if len(pairs) > 1 else pairs
-    train_pairs = pairs[:-1] if len(pairs) > 1 else pairs
+    val_pairs, train_pairs = validation_split(pairs)
     train = [s for c, v in train_pairs for s in est.load_clip_samples(Path(c).parent, Path(v).with_suffix(""))]
     val = []
     for c, v in val_pairs:

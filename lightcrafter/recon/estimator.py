@@ -298,6 +298,9 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
             batch = Sample(**{k: torch.flip(getattr(batch, k), dims=[-1]) for k in Sample.__dataclass_fields__})
             batch.normal_cam = batch.normal_cam * torch.tensor([-1.0, 1.0, 1.0]).view(1, 3, 1, 1)
             coords = torch.flip(coords, dims=[-1]) * torch.tensor([-1.0, 1.0]).view(1, 2, 1, 1)
+        if cfg.augment_ev > 0:  # exposure: scale linear radiance (sRGB decoded approximately) by 2^u
+            u = (torch.rand(len(idx), 1, 1, 1, generator=gen) * 2 - 1) * cfg.augment_ev
+            batch.rgb = ((batch.rgb.clamp_min(0) ** 2.2) * torch.exp2(u)).clamp(0, 1) ** (1 / 2.2)
         if dev.type != "cpu":  # all random draws above stay on the CPU generator
             batch = Sample(**{k: getattr(batch, k).to(dev) for k in Sample.__dataclass_fields__})
             coords = coords.to(dev)
