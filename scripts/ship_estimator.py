@@ -28,10 +28,11 @@ from lightcrafter.io import DataError
 
 def _commit() -> dict:
     def git(*args):
-        return subprocess.run(["git", *args], cwd=_cli.REPO, capture_output=True, text=True).stdout.strip()
+        return subprocess.run(["git", *args], cwd=_cli.REPO, capture_output=True, text=True).stdout
 
-    return {"commit": git("rev-parse", "HEAD") or None, "dirty_files": [l[3:] for l in git("status", "--porcelain")
-                                                                       .splitlines() if l.strip()]}
+    dirty = [line[3:] for line in git("status", "--porcelain").splitlines() if line.strip()]
+    return {"commit": git("rev-parse", "HEAD").strip() or None,
+            "dirty_files": [f for f in dirty if not f.startswith("lightcrafter/recon/weights/")]}
 
 
 def main() -> int:

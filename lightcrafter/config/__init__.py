@@ -282,6 +282,15 @@ def check_startup(config: dict, source: str = "config") -> None:
     for key in ("model", "estimator"):
         if rl["video"] and rl[key] and not Path(rl[key]).is_file():
             raise ConfigError(f"{source}: key 'relight.{key}': {rl[key]} not found; give a model.pt or set null")
+    w = config["recon"]["estimator"]["weights"]
+    if config["recon"]["backend"] == "default" and w != "train":
+        from ..recon.weights import weights_path
+
+        p = weights_path(w, "")
+        if not p.is_file():
+            fix = ("restore it with `git checkout lightcrafter/recon/weights`" if w == "shipped"
+                   else "point it at a weights file written by lightcrafter.recon.estimator.save")
+            raise ConfigError(f"{source}: key 'recon.estimator.weights': {p} not found; {fix}, or set it to train")
     asset = config["edits"]["object"]["asset"]
     if config["edits"]["enabled"] and asset and not Path(asset).is_file():
         raise ConfigError(f"{source}: key 'edits.object.asset': {asset} not found; point it at a .glb or set null")
