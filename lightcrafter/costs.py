@@ -11,7 +11,7 @@ from CPU timings; the paper reports 48 GPU-hours of refiner training.
 
 from __future__ import annotations
 
-from .scenes import plan_scene
+from .scenes import rendered_plans
 
 
 def units(cfg: dict) -> dict[str, tuple[str, float, int]]:
@@ -19,7 +19,7 @@ def units(cfg: dict) -> dict[str, tuple[str, float, int]]:
     s = cfg["scenes"]
     px = s["width"] * s["height"]
     n = s["num_frames"]
-    plans = [plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
+    plans = rendered_plans(cfg)
     trajs = [(p["split"], t) for p in plans for t in p["trajectories"]]
     rgb_jobs = sum(len(t["render_lights"]) for _, t in trajs)
     pairs = sum(len(t["target_lights"]) for sp, t in trajs if sp in ("train", "test"))

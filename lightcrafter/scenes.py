@@ -40,6 +40,21 @@ def scene_ids(scfg: dict) -> list[str]:
     return [f"s{i:04d}" for i in range(int(scfg["count"]))]
 
 
+def renders_recon_split(cfg: dict) -> bool:
+    """Whether a run renders its recon-split scenes: they only feed the G-buffer estimator's training, so
+    only a default-backend run with ``recon.estimator.weights: train`` needs them."""
+    r = cfg.get("recon", {})
+    return r.get("backend") == "default" and r.get("estimator", {}).get("weights") == "train"
+
+
+def rendered_plans(cfg: dict) -> list[dict]:
+    """Plans (:func:`plan_scene`) of the scenes a run renders (every scene but the recon split's unless
+    :func:`renders_recon_split`)."""
+    s = cfg["scenes"]
+    plans = [plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
+    return plans if renders_recon_split(cfg) else [p for p in plans if p["split"] != "recon"]
+
+
 def scene_index(scene_id: str) -> int:
     return int(scene_id.lstrip("s"))
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .scenes import plan_scene
+from .scenes import rendered_plans
 
 FRAME_BPP = 3 * 2                    # R, G, B half float
 BUFFER_BPP = 4 + 9 * 2               # depth float32, normal/albedo (3 + 3), roughness, metallic, mask half
@@ -43,7 +43,7 @@ def plan_counts(cfg: dict) -> dict[str, tuple[int, int]]:
 
     s = cfg["scenes"]
     px, n = int(s["width"]) * int(s["height"]), int(s["num_frames"])
-    plans = [plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
+    plans = rendered_plans(cfg)
     trajs = [(p["split"], t) for p in plans for t in p["trajectories"]]
     pairs = sum(len(t["target_lights"]) for sp, t in trajs if sp in ("train", "test"))
     refiner_trajs = [t for sp, t in trajs if sp in ("train", "test")]

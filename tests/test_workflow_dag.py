@@ -17,13 +17,20 @@ def _plans(cfg):
     return [scenes.plan_scene(s, cfg["seed"], i) for i in range(s["count"])]
 
 
+def _rendered(cfg, plans):
+    """Plans of the scenes a run renders: the recon split only when it trains Phi's estimator."""
+    trains = scenes.renders_recon_split(cfg)
+    return [p for p in plans if trains or p["split"] != "recon"]
+
+
 def expected_gt_counts(cfg):
-    trajs = [t for p in _plans(cfg) for t in p["trajectories"]]
+    plans = _rendered(cfg, _plans(cfg))
+    trajs = [t for p in plans for t in p["trajectories"]]
     return {
         "generate_assets": 1 if cfg["assets"]["source"] == "procedural" else 0,
         "curate_assets": 1,
         "curate_assets_shard": cfg["assets"]["curation_jobs"],
-        "sample_scene": cfg["scenes"]["count"],
+        "sample_scene": len(plans),
         "render_buffers": len(trajs),
         "render_rgb": sum(len(t["render_lights"]) for t in trajs),
     }
@@ -35,9 +42,10 @@ def test_default_config_ground_truth_counts(default_config):
     counts = job_counts(res.stdout)
     exp = expected_gt_counts(default_config)
     assert {k: counts.get(k, 0) for k in exp} == exp
-    # The default: 6 scenes x 3 trajectories; train/test trajectories use 2 of 4 lightings, the 2 recon
-    # scenes (reconstruction-stack training data) only their source lighting.
-    assert counts["render_buffers"] == 18 and counts["render_rgb"] == 4 * 3 * 2 + 2 * 3
+    # The default: 6 scenes x 3 trajectories; train/test trajectories use 2 of 4 lightings; the 2 recon
+    # scenes (the estimator's training data) are not rendered: the default ships the estimator's weights.
+    assert default_config["recon"]["estimator"]["weights"] == "shipped"
+    assert counts["render_buffers"] == 12 and counts["render_rgb"] == 4 * 3 * 2
     # Nothing beyond ground truth is pulled in by this target.
     assert set(counts) == set(exp) | {"ground_truth", "summarize_ground_truth"}
 
@@ -48,10 +56,11 @@ def test_paper_config_counts_and_dag_build_time(paper_config, paper_site):
     seconds = time.perf_counter() - t0
     assert res.returncode == 0, res.stderr
     counts = job_counts(res.stdout)
-    assert counts["sample_scene"] == 400
-    assert counts["render_buffers"] == 400 * 3
-    # train/test: 1 source + 3 targets = every lighting; recon (40 scenes): the source only
-    assert counts["render_rgb"] == 360 * 3 * 4 + 40 * 3
+    # the paper stack trains nothing: the 40 recon-split scenes are not rendered
+    assert counts["sample_scene"] == 360
+    assert counts["render_buffers"] == 360 * 3
+    # train/test: 1 source + 3 targets = every lighting
+    assert counts["render_rgb"] == 360 * 3 * 4
     print(f"paper-config dry run: {sum(counts.values())} jobs in {seconds:.1f} s")
 
 
@@ -89,7 +98,23 @@ def test_no_real_schedules_no_real_video_job(default_config):
     # Phi once per train trajectory (on its source video), not once per target light
     assert counts["reconstruct_synthetic"] == counts["align_synthetic"] == len(trajs["train"])
     assert counts["render_proxy"] == sum(len(t["target_lights"]) for t in trajs["train"])
-    assert counts["train_gbuffer_estimator"] == 1
+    trains = default_config["recon"]["estimator"]["weights"] == "train"
+    assert counts.get("train_gbuffer_estimator", 0) == int(trains)
+
+
+def test_shipped_estimator_weights_leave_out_training_and_the_recon_split(default_config, tmp_path):
+    """recon.estimator.weights: shipped (the default): no estimator training job and no render of a
+    recon-split scene; with train, both are back."""
+    by, trajs = _split_counts(default_config)
+    counts = {}
+    for w in ("shipped", "train"):
+        cfg = tmp_path / f"{w}.yaml"
+        cfg.write_text(yaml.safe_dump({"extends": str(REPO / "config" / "config.yaml"),
+                                       "recon": {"estimator": {"weights": w}}}))
+        counts[w] = job_counts(dry_run("all", configfile=str(cfg)).stdout)
+    assert "train_gbuffer_estimator" not in counts["shipped"] and counts["train"]["train_gbuffer_estimator"] == 1
+    assert counts["train"]["render_buffers"] - counts["shipped"]["render_buffers"] == len(trajs["recon"])
+    assert counts["train"]["sample_scene"] - counts["shipped"]["sample_scene"] == len(by["recon"])
 
 
 def test_no_synthetic_trains_without_synthetic_pairs(default_config):
@@ -97,8 +122,10 @@ def test_no_synthetic_trains_without_synthetic_pairs(default_config):
     by, trajs = _split_counts(default_config)
     for rule in ("reconstruct_synthetic", "align_synthetic", "render_proxy", "render_proxy_gt"):
         assert rule not in counts, rule
-    # only the recon split's source videos and buffers (the estimator that Phi runs on real clips)
-    assert counts["render_rgb"] == len(trajs["recon"]) and counts["render_buffers"] == len(trajs["recon"])
+    # only the recon split's source videos and buffers when the estimator is trained here (Phi runs on real
+    # clips), nothing synthetic with shipped weights
+    n = len(trajs["recon"]) if default_config["recon"]["estimator"]["weights"] == "train" else 0
+    assert counts.get("render_rgb", 0) == n and counts.get("render_buffers", 0) == n
     from lightcrafter.ingest import real_clips
 
     n_train_real = sum(c["split"] == "train" for c in real_clips(default_config["real"]).values())
@@ -110,8 +137,9 @@ def test_no_synthetic_evaluation_renders_only_the_test_scenes(default_config):
     counts = job_counts(dry_run("results/eval/no_synthetic/synthetic/metrics.json").stdout)
     by, trajs = _split_counts(default_config)
     assert counts["reconstruct_synthetic"] == len(trajs["test"])
-    assert counts["sample_scene"] == len(by["test"]) + len(by["recon"])
-    assert counts["render_rgb"] == sum(len(t["render_lights"]) for t in trajs["test"]) + len(trajs["recon"])
+    trains = default_config["recon"]["estimator"]["weights"] == "train"
+    assert counts["sample_scene"] == len(by["test"]) + trains * len(by["recon"])
+    assert counts["render_rgb"] == sum(len(t["render_lights"]) for t in trajs["test"]) + trains * len(trajs["recon"])
 
 
 def test_ablations_target_trains_and_scores_every_variant(default_config):

@@ -16,7 +16,7 @@ from lightcrafter.config import effective_config, raw_config, validate
 from lightcrafter.ingest import real_clips
 from lightcrafter.layout import Layout
 from lightcrafter.mit_multi_illum import plan as mit_plan
-from lightcrafter.scenes import ConfigError, plan_scene, scene_ids
+from lightcrafter.scenes import ConfigError, plan_scene, renders_recon_split, scene_ids
 
 # The effective config (python -m lightcrafter.config prints the same): the --configfile files (their
 # `extends` chains resolved; none given: config/config.yaml), then --config, validated and checked on disk.
@@ -147,20 +147,28 @@ def script_path(name):
 
 
 # ----------------------------------------------------------------------------- ground truth
+def rendered_scenes():
+    """The scenes this run renders: the recon split only feeds the estimator's training, so it is left out
+    when Phi uses weights from elsewhere (recon.estimator.weights: shipped or a file) or the paper stack.
+    """
+    trains = renders_recon_split(config)
+    return [sid for sid in SCENE_IDS if trains or _PLANS[sid]["split"] != "recon"]
+
+
 def gt_buffer_manifests(scene_ids=None):
-    """Every trajectory's ground-truth clip manifest (lighting-independent: one per trajectory)."""
+    """Every rendered trajectory's ground-truth clip manifest (lighting-independent: one per trajectory)."""
     return [
         L.gt_clip_manifest(sid, t["id"])
-        for sid in (scene_ids or SCENE_IDS)
+        for sid in (scene_ids or rendered_scenes())
         for t in _PLANS[sid]["trajectories"]
     ]
 
 
 def gt_rgb_manifests(scene_ids=None):
-    """Every (trajectory, lighting) that some pair uses; unused lightings are left out."""
+    """Every rendered (trajectory, lighting) that some pair uses; unused lightings are left out."""
     return [
         f"{L.gt_rgb(sid, t['id'], light)}.json"
-        for sid in (scene_ids or SCENE_IDS)
+        for sid in (scene_ids or rendered_scenes())
         for t in _PLANS[sid]["trajectories"]
         for light in t["render_lights"]
     ]
@@ -601,4 +609,6 @@ def relight_model():
 
 
 def relight_estimator(wildcards):
-    return [] if PAPER_STACK else (config["relight"]["estimator"] or estimator_weights())
+    return (
+        [] if PAPER_STACK else (config["relight"]["estimator"] or estimator_weights())
+    )

@@ -61,7 +61,7 @@ rule render_rgb:
 
 rule summarize_ground_truth:
     input:
-        specs=[L.scene_spec(s) for s in SCENE_IDS],
+        specs=[L.scene_spec(s) for s in rendered_scenes()],
         buffers=gt_buffer_manifests(),
         rgb=gt_rgb_manifests(),
     output:

@@ -1,0 +1,76 @@
+"""The shipped G-buffer estimator (recon.estimator.weights: shipped): it loads, it reproduces the errors its
+provenance file records on the shipped check frames, the provenance names how it was made, and bad
+weights files get one line naming the file and the fix."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+import torch
+
+from lightcrafter import io
+from lightcrafter.recon import estimator as est
+from lightcrafter.recon.weights import SHIPPED_PROVENANCE, SHIPPED_WEIGHTS, check_set_path, weights_path
+
+
+def test_shipped_weights_reproduce_their_recorded_validation_errors():
+    prov = io.read_json(SHIPPED_PROVENANCE)
+    assert hashlib.sha256(SHIPPED_WEIGHTS.read_bytes()).hexdigest() == prov["sha256"]
+    errors = est.check_set_errors(est.load(SHIPPED_WEIGHTS), check_set_path())
+    for k, v in prov["check_set_errors"].items():
+        assert errors[k] == pytest.approx(v, rel=1e-3, abs=1e-4), k
+    # and they are errors worth shipping: the goals of Phi's default (albedo >= 20 dB, normals <= 10 deg)
+    # are checked on the run's test clips (results/summary/reconstruction.json); here, on held-out frames,
+    # the weights must be far better than an untrained network
+    torch.manual_seed(0)
+    untrained = est.check_set_errors(est.GBufferNet(prov["estimator"]["widths"]).eval(), check_set_path())
+    assert errors["normal_deg"] < 0.5 * untrained["normal_deg"]
+    assert errors["albedo_psnr_db"] > untrained["albedo_psnr_db"] + 3
+
+
+def test_provenance_names_the_commit_config_data_and_curve():
+    prov = io.read_json(SHIPPED_PROVENANCE)
+    assert len(prov["commit"]) == 40 and prov["config_file"] == "estimator.yaml"
+    assert prov["data"]["train_frames"] > 0 and prov["data"]["scenes"] > 1
+    steps = [p["setting"] for p in prov["curve"] if p["series"] == "normal_deg"]
+    secs = [p["seconds"] for p in prov["curve"] if p["series"] == "normal_deg"]
+    assert steps == sorted(steps) and secs == sorted(secs) and prov["selected_step"] in steps
+    assert prov["parameters"] == sum(p.numel() for p in est.load(SHIPPED_WEIGHTS).parameters())
+
+
+def test_weights_key_resolves_train_shipped_and_paths(tmp_path):
+    assert weights_path("train", tmp_path / "m.pt") == tmp_path / "m.pt"
+    assert weights_path("shipped", tmp_path / "m.pt") == SHIPPED_WEIGHTS
+    assert weights_path(str(tmp_path / "x.pt"), "unused") == tmp_path / "x.pt"
+
+
+@pytest.mark.parametrize("case", ["missing", "garbage", "truncated", "other_shape", "foreign_pickle"])
+def test_bad_weights_files_get_one_line_naming_the_file_and_the_fix(tmp_path, case):
+    p = tmp_path / "weights.pt"
+    if case == "garbage":
+        p.write_bytes(b"\x00not a torch file" * 50)
+    elif case == "truncated":
+        p.write_bytes(SHIPPED_WEIGHTS.read_bytes()[:2000])
+    elif case == "other_shape":
+        st = torch.load(SHIPPED_WEIGHTS, map_location="cpu", weights_only=False)
+        st["config"]["widths"] = [8, 16]
+        torch.save(st, p)
+    elif case == "foreign_pickle":
+        torch.save({"weights": np.zeros(3)}, p)
+    with pytest.raises(io.DataError) as exc:
+        est.load(p)
+    msg = str(exc.value)
+    assert str(p) in msg and "\n" not in msg and "recon.estimator.weights" in msg
+
+
+def test_a_weights_key_naming_a_missing_file_stops_the_run_at_start_up(tmp_path):
+    from lightcrafter.config import effective_config
+    from lightcrafter.scenes import ConfigError
+
+    missing = tmp_path / "nowhere.pt"
+    with pytest.raises(ConfigError) as exc:
+        effective_config(overrides={"recon": {"estimator": {"weights": str(missing)}}})
+    assert "recon.estimator.weights" in str(exc.value) and str(missing) in str(exc.value)
+    assert "\n" not in str(exc.value)
