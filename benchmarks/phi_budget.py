@@ -99,7 +99,7 @@ def _oidn(frames: list[np.ndarray]) -> list[np.ndarray] | str:
     return f"not computed: {why}" if why else [denoise_hdr(f) for f in frames]
 
 
-def budget_rows(gt_views, phi_views, lighting, settings, scene_static: bool, work: Path):
+def budget_rows(gt_views, phi_views, settings, scene_static: bool):
     """(row name, settings, views) for every row of the budget of one clip."""
     from lightcrafter.proxy.clip import resolve_visibility
 
@@ -174,7 +174,7 @@ def main() -> int:
             lighting = lighting_from_spec(spec, light, tid, where=str(L.scene_spec(sid)))
             row = {"pair_id": f"{sid}_{tid}_{light}", "motion": t.get("motion"), "rows": {}}
             videos = {}
-            for name, s, views in budget_rows(gt_views, phi_views, lighting, settings, info.scene_static, Path(tmp)):
+            for name, s, views in budget_rows(gt_views, phi_views, settings, info.scene_static):
                 if rows_wanted and name not in rows_wanted:
                     continue
                 t0 = time.perf_counter()
