@@ -236,20 +236,17 @@ def _rerun_phi(L, cfg: dict, sid: str, tid: str, traj: dict, over: dict, work: P
     truth; returns the aligned clip folder, or None when Phi leaves the clip out."""
     from lightcrafter.recon.align import align_clip
     from lightcrafter.recon.cameras import ReconstructionError
-    from lightcrafter.recon.default import DefaultSettings, reconstruct_default
+    from lightcrafter.recon.default import reconstruct_default, settings_from_config
     from lightcrafter.recon.weights import weights_path
 
     r = cfg["recon"]
-    base = {"fov_x_deg": r["fov_x_deg"] or cfg["scenes"]["fov_x_deg"], "normals": r["normals"],
-            "depth_fit": r["depth_fit"], "sfm": r["sfm"],
-            **{k: r[k] for k in ("max_hole_fraction", "ground_plane", "ground_plane_tol_rel", "ground_plane_max_tilt_deg")}}
     est, al = work / f"{sid}_{tid}", work / f"{sid}_{tid}_aligned"
     try:
         reconstruct_default(Path(L.gt_rgb(sid, tid, traj["source_light"])), est,
                             estimator_path=weights_path(r["estimator"]["weights"], L.estimator()),
                             fps=cfg["scenes"]["fps"],
                             scene_static=traj.get("scene_static", traj.get("motion") != "dynamic_moving"),
-                            settings=DefaultSettings.from_dict({**base, **over}), name=f"{sid}_{tid}")
+                            settings=settings_from_config(cfg, **over), name=f"{sid}_{tid}")
     except ReconstructionError as exc:
         print(f"{sid}_{tid}: {exc}", flush=True)
         return None

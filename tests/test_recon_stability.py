@@ -190,3 +190,34 @@ def test_ground_plane_is_recovered_from_noisy_points_with_outliers_and_degenerat
     assert fit_ground_plane(line, np.ones(50), 0.02, 25.0) is None
     wall = np.c_[rng.uniform(-1, 1, 500), np.zeros(500), rng.uniform(0, 2, 500)]  # vertical: not a ground
     assert fit_ground_plane(wall, np.ones(500), 0.02, 25.0) is None
+
+
+def test_sky_beyond_the_ground_is_cut_and_an_object_on_the_ground_is_kept():
+    """A camera 1.5 m above the ground plane z = 0 looks at the horizon: the estimator's "surface" above the
+    horizon at 80 m (the sky as a far wall) is cut; a 1 m box 6 m away, rising above the horizon, stays."""
+    import math
+
+    from lightcrafter.camera import intrinsics, opencv_c2w
+    from lightcrafter.recon.default import cut_sky_beyond_ground, plane_depth
+
+    w, h = 64, 48
+    K = intrinsics(w, h, math.radians(60.0))
+    c2w = opencv_c2w([0.0, 0.0, 1.5], [0.0, 20.0, 1.3])
+    n, o = np.array([0.0, 0.0, 1.0]), 0.0
+    zp = plane_depth(n, o, K, c2w, h, w)
+    ground = np.isfinite(zp) & (zp < 30.0)                     # a ground that ends 30 m away
+    depth = np.where(ground, zp, 80.0)                          # the rest: a "wall" at 80 m
+    box = np.zeros((h, w), bool)
+    box[14:30, 28:36] = True                                   # rises above the horizon (row ~ 22)
+    depth[box] = 6.0
+    normal = np.where(ground[..., None], n, [0.0, -1.0, 0.0])   # the wall and the box face the camera
+    surface = np.ones((h, w), bool)
+    mask, cut = cut_sky_beyond_ground(depth[None], normal[None], surface[None], (n, o), K[None], c2w[None], 0.05,
+                                      25.0, 1.5)
+    sky = ~np.isfinite(zp) & ~box
+    assert cut == int(sky.sum()) > 0
+    assert not mask[0][sky].any() and mask[0][box].all() and mask[0][ground & ~box].all()
+    # far ground below the horizon is never cut, and a frame without ground pixels is left alone
+    none, cut0 = cut_sky_beyond_ground(np.full((1, h, w), 80.0), normal[None], surface[None], (n, o), K[None],
+                                       c2w[None], 0.05, 25.0, 1.5)
+    assert cut0 == 0 and none.all()

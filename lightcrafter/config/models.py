@@ -17,7 +17,7 @@ from __future__ import annotations
 from typing import Literal, Optional, Union
 
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
-                      model_validator)
+                      field_validator, model_validator)
 
 from ..datasets import BENCHMARKS, VARIANTS
 from ..recon import BACKENDS
@@ -294,11 +294,23 @@ class Recon(Section):
                                                 "its depth")
     ground_plane_max_tilt_deg: PositiveFloat = Field(25.0, lt=90, description="largest angle between a pixel's "
                                                      "normal (and the plane's) and the up direction")
+    sky_beyond_ground: NonNegativeFloat = Field(0.0, description="default backend, with ground_plane: surface "
+                                                "pixels above the plane's horizon farther than this multiple of the "
+                                                "frame's farthest ground pixel become background (the estimator's "
+                                                "sky as a far wall shadows the whole ground; counted in the clip "
+                                                "manifest's phi.sky_pixels_cut); 0 = off, else >= 1")
     skip_failed: bool = Field(True, description="a video Phi cannot reconstruct is left out and counted instead of "
                               "stopping the run")
     sfm: SfM = Field(default_factory=SfM)
     estimator: Estimator = Field(default_factory=Estimator)
     paper_stack: PaperStack = Field(default_factory=PaperStack)
+
+    @field_validator("sky_beyond_ground")
+    @classmethod
+    def _ratio_or_off(cls, v: float) -> float:
+        if 0 < v < 1:
+            raise ValueError("use 0 (off) or a ratio >= 1 of the frame's farthest ground pixel")
+        return v
 
 
 # ----------------------------------------------------------------------------- real videos, MIT

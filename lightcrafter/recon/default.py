@@ -17,7 +17,10 @@ transform, lightcrafter.io.linear_to_display, as a camera would record them):
    these scenes) is rotated onto +Z (the smallest rotation), for cameras and normals alike;
 6. optionally (``ground_plane``), the dominant supporting plane: a RANSAC plane through every frame's
    unprojected upward-facing surface points; pixels on it take its depth and normal, and its normal becomes
-   the world's +Z (:func:`snap_to_ground_plane`);
+   the world's +Z (:func:`snap_to_ground_plane`); with ``sky_beyond_ground`` > 0, surface pixels above the
+   plane's horizon farther than that multiple of the frame's farthest ground pixel are background
+   (:func:`cut_sky_beyond_ground`: an estimator that calls the sky a surface makes a far wall that shadows
+   the whole ground);
 7. holes of the mask (``max_hole_fraction``) are filled from the nearest surface pixel;
 8. a static camera over a static scene gives ONE buffer frame: the per-frame predictions are averaged
    (median depth, mean normal/materials), so R builds its meshes once.
@@ -48,7 +51,9 @@ class DefaultSettings:
     surface or smaller than this fraction of the frame are holes, filled from the nearest surface pixel
     (:func:`hole_pixels`; 0 = off); ground_plane: snap the dominant supporting plane
     (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
-    ``ground_plane_max_tilt_deg``); sfm: SfMSettings fields; exposure_ev: display
+    ``ground_plane_max_tilt_deg``); sky_beyond_ground: with the plane, surface pixels above its horizon
+    farther than this multiple of the frame's farthest ground pixel become background
+    (:func:`cut_sky_beyond_ground`; 0 = off); sfm: SfMSettings fields; exposure_ev: display
     exposure applied before estimation."""
 
     fov_x_deg: float = 50.0
@@ -61,6 +66,7 @@ class DefaultSettings:
     ground_plane: bool = False
     ground_plane_tol_rel: float = 0.05
     ground_plane_max_tilt_deg: float = 25.0
+    sky_beyond_ground: float = 0.0
     exposure_ev: float = 0.0
     sfm: dict = field(default_factory=dict)
 
@@ -75,6 +81,8 @@ class DefaultSettings:
             raise ValueError(f"recon camera={s.camera!r}: use 'auto' or 'static'")
         if s.depth_fit not in ("scale", "affine"):
             raise ValueError(f"recon.depth_fit={s.depth_fit!r}: use 'scale' or 'affine'")
+        if s.sky_beyond_ground and s.sky_beyond_ground < 1.0:
+            raise ValueError(f"recon.sky_beyond_ground={s.sky_beyond_ground!r}: use 0 (off) or a ratio >= 1")
         if s.normals not in ("predicted", "depth"):
             raise ValueError(f"recon.normals={s.normals!r}: use 'predicted' or 'depth'")
         from lightcrafter.config import validate_section
@@ -264,7 +272,8 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     normals are within ``max_tilt_deg`` of the plane's take the plane's depth and normal exactly (a
     multi-view estimate of the ground replaces the per-frame monocular one: no tilt, no depth noise to cast
     self-shadows). The plane is used only when its pixels are at least ``min_support`` of the clip's
-    surface pixels (info ``support_fraction``, ``used``). Returns (depth, n_world, plane normal or None, info)."""
+    surface pixels (info ``support_fraction``, ``used``). Returns (depth, n_world, plane (n, o) or None, info)
+    with the plane n . x = o in the given world."""
     from lightcrafter.proxy.geometry import unproject
 
     nf, h, w = depth.shape
@@ -298,7 +307,55 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     for i, (on, zp) in enumerate(ons):
         depth[i][on] = zp[on]
         n_world[i][on] = n
-    return depth, n_world, n, info
+    return depth, n_world, (n, o), info
+
+
+def cut_sky_beyond_ground(depth: np.ndarray, n_world: np.ndarray, surface: np.ndarray, plane: tuple[np.ndarray, float],
+                          K: np.ndarray, c2w: np.ndarray, tol_rel: float, max_tilt_deg: float,
+                          ratio: float) -> tuple[np.ndarray, int]:
+    """Surface mask (N, H, W) without the pixels that cannot be scene: above the ground plane's horizon
+    (their rays never meet the plane n . x = o) and farther than ``ratio`` x the frame's farthest ground pixel
+    (the 99th percentile of the depths of ground pixels: within ``tol_rel`` of the plane and facing up within
+    ``max_tilt_deg``, so a far wall where it meets the plane does not count). Objects standing on the
+    ground are nearer than the ground behind them, so they stay; the sky and the far environment go.
+    Frames without ground pixels are left alone. Returns (mask, pixels cut)."""
+    n, o = plane
+    nf, h, w = depth.shape
+    out, cut = surface.copy(), 0
+    for i in range(nf):
+        zp = plane_depth(n, o, K[i], c2w[i], h, w)
+        ground = surface[i] & np.isfinite(zp) & (np.abs(depth[i] - zp) < tol_rel * zp) & \
+            ((n_world[i] @ n) > np.cos(np.radians(max_tilt_deg)))
+        if not ground.any():
+            continue
+        far = float(np.percentile(depth[i][ground], 99))
+        sky = surface[i] & ~np.isfinite(zp) & (depth[i] > ratio * far)
+        out[i] &= ~sky
+        cut += int(sky.sum())
+    return out, cut
+
+
+def settings_from_config(cfg: dict, **overrides) -> "DefaultSettings":
+    """The default backend's settings from an effective config (its ``recon`` section; the scenes' field of
+    view when ``recon.fov_x_deg`` is null), then ``overrides`` (DefaultSettings fields)."""
+    return DefaultSettings.from_dict({**config_settings(cfg), **overrides})
+
+
+def config_settings(cfg: dict) -> dict:
+    """The config keys of the default backend as a dict of DefaultSettings fields (what the workflow hands
+    scripts/reconstruct.py), in a fixed order."""
+    r = cfg["recon"]
+    return {
+        "fov_x_deg": r["fov_x_deg"] or cfg["scenes"]["fov_x_deg"],
+        "normals": r["normals"],
+        "depth_fit": r["depth_fit"],
+        "max_hole_fraction": r["max_hole_fraction"],
+        "ground_plane": r["ground_plane"],
+        "ground_plane_tol_rel": r["ground_plane_tol_rel"],
+        "ground_plane_max_tilt_deg": r["ground_plane_max_tilt_deg"],
+        "sky_beyond_ground": r["sky_beyond_ground"],
+        "sfm": r["sfm"],
+    }
 
 
 def up_rotation(up: np.ndarray) -> np.ndarray:
@@ -357,10 +414,14 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     n_world = n_world @ Q.T
     plane_info = {}
     if settings.ground_plane:
-        depth, n_world, n_plane, plane_info = snap_to_ground_plane(
+        depth, n_world, plane, plane_info = snap_to_ground_plane(
             depth, n_world, mask, track.K, c2w, settings.ground_plane_tol_rel, settings.ground_plane_max_tilt_deg)
-        if n_plane is not None:  # the plane's normal is the world's up: rotate it onto +Z exactly
-            Q2 = up_rotation(n_plane)
+        if plane is not None and settings.sky_beyond_ground:
+            mask, plane_info["sky_pixels_cut"] = cut_sky_beyond_ground(
+                depth, n_world, mask, plane, track.K, c2w, settings.ground_plane_tol_rel,
+                settings.ground_plane_max_tilt_deg, settings.sky_beyond_ground)
+        if plane is not None:  # the plane's normal is the world's up: rotate it onto +Z exactly
+            Q2 = up_rotation(plane[0])
             c2w[:, :3, :3] = Q2 @ c2w[:, :3, :3]
             c2w[:, :3, 3] = c2w[:, :3, 3] @ Q2.T
             n_world = n_world @ Q2.T

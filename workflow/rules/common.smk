@@ -222,16 +222,9 @@ def recon_settings():
     r = config["recon"]
     if PAPER_STACK:
         return r["paper_stack"]
-    return {
-        "fov_x_deg": r["fov_x_deg"] or config["scenes"]["fov_x_deg"],
-        "normals": r["normals"],
-        "depth_fit": r["depth_fit"],
-        "max_hole_fraction": r["max_hole_fraction"],
-        "ground_plane": r["ground_plane"],
-        "ground_plane_tol_rel": r["ground_plane_tol_rel"],
-        "ground_plane_max_tilt_deg": r["ground_plane_max_tilt_deg"],
-        "sfm": r["sfm"],
-    }
+    from lightcrafter.recon.default import config_settings
+
+    return config_settings(config)
 
 
 def estimator_weights():
