@@ -20,11 +20,11 @@ gives one value per clip:
   (11 taps), population (not sample) covariance, K1 = 0.01, K2 = 0.03, data_range 1, computed per
   channel (``channel_axis``) and averaged over channels; the 5-px border where the window leaves
   the image is excluded from the mean (scikit-image's convention), borders filtered in 'reflect'.
-* **LPIPS** (lower is better): the ``lpips`` package (Zhang et al. 2018, v0.1 linear layers shipped
-  in the package, AlexNet backbone by default) on frames scaled to [-1, 1], per frame, then the mean.
-  The backbone weights come only from a configured local folder (never downloaded); see
-  :func:`lpips_video` for what to install and where to put the file. Where ``lpips`` cannot run the
-  result is marked "not computed: <reason>" and carries no value.
+* **LPIPS** (lower is better): LPIPS v0.1 (Zhang et al. 2018, AlexNet backbone by default) in plain
+  torch (:mod:`lightcrafter.lpips_net`: no torchvision, no ``lpips`` package) on frames scaled to
+  [-1, 1], per frame, then the mean. Both weight files (torchvision's backbone checkpoint and the v0.1
+  linear layers) come only from a configured local folder (never downloaded; :func:`load_lpips`).
+  Without them the result is marked "not computed: <reason>" and carries no value.
 
 Temporal metrics, one value per transition t -> t+1, then the mean over transitions:
 
@@ -79,9 +79,9 @@ Run time (benchmarks/evaluation_cost.py on synthetic clips, 2-core CPU; CPU seco
 the machine was shared so wall times were ~2.5x these): a 49-frame 720x480 clip costs PSNR 0.9 s,
 SSIM 8.1 s, Warp-SSIM 11.6 s (DIS flows of the target 5.5 s, reusable across methods, + scoring
 6.0 s), T-CLIP with a ViT-B/32-size CLIP 13.7 s; a 17-frame 128x96 clip PSNR 0.002 s, SSIM 0.08 s,
-Warp-SSIM 0.19 s, T-CLIP 4.0 s (the CLIP input is always 224 px). LPIPS (AlexNet) cannot run on
-this machine; with the real ``lpips`` 0.1.4 code and an architecture-identical stand-in backbone in a
-throwaway environment it cost 19.9 s and 0.47 s of CPU for the two clips.
+Warp-SSIM 0.19 s, T-CLIP 4.0 s (the CLIP input is always 224 px). LPIPS (AlexNet): measured with the
+``lpips`` 0.1.4 package in a throwaway environment at 19.9 s and 0.47 s of CPU for the two clips, before
+:mod:`lightcrafter.lpips_net` replaced it (not re-measured).
 """
 
 from __future__ import annotations
@@ -114,10 +114,6 @@ BOOTSTRAP_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 0
 BOOTSTRAP_CONFIDENCE = 0.95
 
-#: torchvision checkpoint file of each LPIPS backbone (the torch hub cache name).
-LPIPS_BACKBONE_FILES = {"alex": "alexnet-owt-7be5be79.pth", "vgg": "vgg16-397923af.pth",
-                        "squeeze": "squeezenet1_1-b8a52dc0.pth"}
-LPIPS_INSTALL = "pip install torchvision==0.28.0 lpips==0.1.4 (beside the CUDA build of torch==2.13.0)"
 
 
 # ----------------------------------------------------------------------------- result type
@@ -497,74 +493,37 @@ def t_clip(video, clip_weights: str | Path | None = None, embedder: ClipImageEmb
 
 
 # ----------------------------------------------------------------------------- LPIPS
-def _lpips_backbone_file(folder: Path, net: str) -> Path | None:
-    name = LPIPS_BACKBONE_FILES[net]
-    for cand in (folder / name, folder / "checkpoints" / name):
-        if cand.is_file():
-            return cand
-    return None
-
-
 def load_lpips(lpips_weights: str | Path | None, net: str = "alex"):
-    """An ``lpips.LPIPS`` model with the backbone loaded from ``lpips_weights``, or the "not
-    computed" reason string.
+    """The LPIPS v0.1 module (:mod:`lightcrafter.lpips_net`, plain torch) from the local folder
+    ``lpips_weights``, or the "not computed" reason string.
 
-    ``lpips_weights`` is a folder holding the torchvision ImageNet checkpoint of the backbone
-    (:data:`LPIPS_BACKBONE_FILES`, e.g. ``alexnet-owt-7be5be79.pth``) either directly or under
-    ``checkpoints/`` (so a torch hub cache folder, ``~/.cache/torch/hub``, works as is). The LPIPS
-    linear layers are the v0.1 files shipped inside the ``lpips`` package. The backbone is built
-    untrained (``pnet_rand=True``, so torchvision downloads nothing) and its ``features.*``
-    parameters are copied in from the checkpoint.
+    The folder holds torchvision's backbone checkpoint (:data:`lightcrafter.lpips_net.BACKBONE_FILES`, e.g.
+    ``alexnet-owt-7be5be79.pth``) and the v0.1 linear layers (``alex.pth``, from the ``lpips`` package's
+    ``weights/v0.1/``), directly or under ``checkpoints/``. A file that is there but wrong is a one-line
+    :class:`DataError` naming it.
     """
-    if net not in LPIPS_BACKBONE_FILES:
-        raise ValueError(f"lpips: net must be one of {sorted(LPIPS_BACKBONE_FILES)}, got {net!r}")
+    from lightcrafter import lpips_net
+
+    if net not in lpips_net.BACKBONE_FILES:
+        raise ValueError(f"lpips: net must be one of {sorted(lpips_net.BACKBONE_FILES)}, got {net!r}")
     if not lpips_weights:
         return "no LPIPS weights configured (evaluation.lpips_weights is empty); nothing is downloaded"
     folder = Path(lpips_weights)
     if not folder.is_dir():
         return f"no LPIPS weights at {folder}"
-    ckpt = _lpips_backbone_file(folder, net)
-    if ckpt is None:
-        return (f"no LPIPS weights at {folder}: {LPIPS_BACKBONE_FILES[net]} is missing there "
-                "(directly or under checkpoints/)")
-    try:
-        import lpips
-    except Exception as exc:  # ImportError, or torchvision's RuntimeError for a torch build mismatch
-        return (f"the lpips package cannot be imported here ({type(exc).__name__}: {exc}); it needs a "
-                f"torchvision that matches torch: {LPIPS_INSTALL}")
-    return _build_lpips(str(ckpt.resolve()), net)
-
-
-@functools.lru_cache(maxsize=2)
-def _build_lpips(ckpt: str, net: str):
-    import re
-
-    import lpips
-    import torch
-
-    from .io import DataError
-
-    model = lpips.LPIPS(net=net, version="0.1", pretrained=True, pnet_rand=True, verbose=False)
-    state = torch.load(ckpt, map_location="cpu", weights_only=True)
-    with torch.no_grad():
-        for name, param in model.net.named_parameters():
-            key = re.sub(r"^slice\d+\.(\d+)\.", r"features.\1.", name)
-            if key not in state or state[key].shape != param.shape:
-                raise DataError(f"{ckpt}: no tensor {key} of shape {tuple(param.shape)} for the LPIPS {net} "
-                                f"backbone; use torchvision's {LPIPS_BACKBONE_FILES[net]}")
-            param.copy_(state[key])
-    return model.eval()
+    found = {}
+    for what, name in (("backbone", lpips_net.BACKBONE_FILES[net]), ("linear", lpips_net.LINEAR_FILES[net])):
+        found[what] = lpips_net.find_file(folder, name)
+        if found[what] is None:
+            return f"no LPIPS weights at {folder}: {name} is missing there (directly or under checkpoints/)"
+    return lpips_net.build(str(found["backbone"].resolve()), str(found["linear"].resolve()), net)
 
 
 def lpips_video(method, target, lpips_weights: str | Path | None = None, net: str = "alex",
                 model=None, batch_size: int = 8) -> MetricResult:
     """Per-frame LPIPS (``lpips`` v0.1, inputs scaled to [-1, 1]) and the mean over frames.
 
-    Not computed (value None) without a local backbone checkpoint or where ``lpips`` cannot be
-    imported. On this project's CPU machines PyPI's torchvision wheels (0.28.0 / 0.29.x) link
-    libtorch_cuda.so and fail to import beside the CPU torch 2.13.0 build, so ``lpips`` cannot run
-    there; on a CUDA machine: ``pip install torchvision==0.28.0 lpips==0.1.4`` and set
-    ``evaluation.lpips_weights`` to a folder with ``alexnet-owt-7be5be79.pth``.
+    Not computed (value None) without the local weight files (:func:`load_lpips`).
     """
     m, t = _pair(method, target)
     if model is None:
@@ -573,6 +532,12 @@ def lpips_video(method, target, lpips_weights: str | Path | None = None, net: st
             return MetricResult.not_computed("lpips", loaded, lpips_weights=str(lpips_weights or ""), net=net)
         model = loaded
     import torch
+
+    from lightcrafter.lpips_net import MIN_SIDE
+
+    if min(m.shape[1:3]) < MIN_SIDE.get(net, 0):
+        raise ValueError(f"LPIPS needs frames of at least {MIN_SIDE[net]} px on each side for its {net} backbone, "
+                         f"got {m.shape[2]}x{m.shape[1]}; evaluate at a larger size")
 
     def to_t(x):
         return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32)) * 2.0 - 1.0
@@ -583,7 +548,7 @@ def lpips_video(method, target, lpips_weights: str | Path | None = None, net: st
             d = model(to_t(m[i:i + batch_size]), to_t(t[i:i + batch_size]))
             vals.extend(float(x) for x in d.reshape(-1))
     return MetricResult("lpips", _finite_mean(vals), tuple(vals),
-                        info={"library": "lpips 0.1 linear layers", "net": net, "input": "display scaled to [-1, 1]",
+                        info={"library": "lightcrafter.lpips_net (LPIPS v0.1)", "net": net, "input": "display scaled to [-1, 1]",
                               "lpips_weights": str(lpips_weights or "")})
 
 

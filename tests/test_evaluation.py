@@ -3,7 +3,6 @@ T-CLIP and LPIPS from local weights only, aggregation and bootstrap intervals.""
 
 from __future__ import annotations
 
-import importlib.util
 
 import numpy as np
 import pytest
@@ -258,38 +257,110 @@ def test_lpips_not_computed_without_weights(tmp_path):
     assert "lpips" not in scores and any(s.startswith("lpips: skipped, not computed") for s in skipped)
 
 
-def _lpips_importable() -> bool:
-    if importlib.util.find_spec("lpips") is None:
-        return False
-    try:
-        import lpips  # noqa: F401
-    except Exception:
-        return False
-    return True
+ALEX_FEATURES = {0: (64, 3, 11), 3: (192, 64, 5), 6: (384, 192, 3), 8: (256, 384, 3), 10: (256, 256, 3)}
 
 
-@pytest.mark.skipif(_lpips_importable(), reason="lpips imports here; the compute path is tested instead")
-def test_lpips_reports_why_it_cannot_run(tmp_path):
-    (tmp_path / "alexnet-owt-7be5be79.pth").write_bytes(b"")
-    v = np.zeros((1, 8, 8, 3))
-    r = ev.lpips_video(v, v, tmp_path)
-    assert r.value is None
-    assert "lpips package cannot be imported" in r.status and "torchvision" in r.status
-
-
-@pytest.mark.skipif(not _lpips_importable(), reason="lpips (and a working torchvision) not importable here")
-def test_lpips_with_random_local_backbone(tmp_path):
+def _standin_lpips_weights(folder, seed=0, under_checkpoints=False):
+    """Random weights in the real formats: torchvision's AlexNet ``features.*`` keys and shapes (plus a
+    classifier key, which LPIPS ignores) and lpips' v0.1 ``lin{k}.model.1.weight`` (non-negative)."""
     import torch
-    import torchvision
 
-    torch.manual_seed(0)
-    torch.save(torchvision.models.alexnet(weights=None).state_dict(), tmp_path / "alexnet-owt-7be5be79.pth")
+    g = torch.Generator().manual_seed(seed)
+    d = folder / "checkpoints" if under_checkpoints else folder
+    d.mkdir(parents=True, exist_ok=True)
+    backbone = {}
+    for i, (o, c, k) in ALEX_FEATURES.items():
+        backbone[f"features.{i}.weight"] = torch.randn(o, c, k, k, generator=g) * (2.0 / (c * k * k)) ** 0.5
+        backbone[f"features.{i}.bias"] = torch.randn(o, generator=g) * 0.01
+    backbone["classifier.6.bias"] = torch.zeros(1000)
+    torch.save(backbone, d / "alexnet-owt-7be5be79.pth")
+    lin = {f"lin{k}.model.1.weight": torch.rand(1, c, 1, 1, generator=g) * 0.1
+           for k, c in enumerate((64, 192, 384, 256, 256))}
+    torch.save(lin, d / "alex.pth")
+    return backbone, lin
+
+
+def _lpips_by_hand(a, b, backbone, lin):
+    """LPIPS v0.1 written out layer by layer from the two state dicts (an independent check of the wiring)."""
+    import torch
+    import torch.nn.functional as F
+
+    shift = torch.tensor([-0.030, -0.088, -0.188]).view(1, 3, 1, 1)
+    scale = torch.tensor([0.458, 0.448, 0.450]).view(1, 3, 1, 1)
+
+    def taps(x):
+        x = (x - shift) / scale
+        out = []
+        for i, stride, pad, pool in ((0, 4, 2, False), (3, 1, 2, True), (6, 1, 1, True), (8, 1, 1, False),
+                                     (10, 1, 1, False)):
+            if pool:
+                x = F.max_pool2d(x, 3, 2)
+            x = F.relu(F.conv2d(x, backbone[f"features.{i}.weight"], backbone[f"features.{i}.bias"], stride, pad))
+            out.append(x / (x.pow(2).sum(1, keepdim=True).sqrt() + 1e-10))
+        return out
+
+    return sum((F.conv2d((x - y) ** 2, lin[f"lin{k}.model.1.weight"])).mean(dim=(1, 2, 3))
+               for k, (x, y) in enumerate(zip(taps(a), taps(b))))
+
+
+def test_lpips_from_standin_weights_in_the_real_formats(tmp_path):
+    import torch
+
+    backbone, lin = _standin_lpips_weights(tmp_path)
     rng = np.random.default_rng(0)
-    a, b = rng.random((3, 64, 64, 3)), rng.random((3, 64, 64, 3))
+    a = rng.random((3, 64, 64, 3))
+    noisy = [np.clip(a + rng.normal(0, s, a.shape), 0, 1) for s in (0.02, 0.1, 0.3)]
     same = ev.lpips_video(a, a, tmp_path)
-    assert same.computed and np.allclose(same.per_item, 0.0, atol=1e-6)
-    diff = ev.lpips_video(a, b, tmp_path)
-    assert diff.value > 0 and len(diff.per_item) == 3
+    assert same.computed and np.allclose(same.per_item, 0.0, atol=1e-7)
+    vals = [ev.lpips_video(n, a, tmp_path).value for n in noisy]
+    assert 0 < vals[0] < vals[1] < vals[2]                      # more noise, farther
+    assert ev.lpips_video(a, noisy[1], tmp_path).value == pytest.approx(vals[1], rel=1e-5)  # symmetric
+    to_t = lambda x: torch.from_numpy(x.transpose(0, 3, 1, 2).astype(np.float32)) * 2 - 1  # noqa: E731
+    ref = _lpips_by_hand(to_t(noisy[1]), to_t(a), backbone, lin).numpy()
+    np.testing.assert_allclose(ev.lpips_video(noisy[1], a, tmp_path).per_item, ref, rtol=1e-4)
+    # a torch hub cache folder (files under checkpoints/) works as is
+    hub = tmp_path / "hub"
+    _standin_lpips_weights(hub, under_checkpoints=True)
+    assert ev.lpips_video(noisy[1], a, hub).value == pytest.approx(vals[1], rel=1e-5)
+
+
+def test_lpips_weights_of_another_network_or_a_broken_file_are_one_line_errors(tmp_path):
+    import torch
+
+    from lightcrafter.io import DataError
+
+    v = np.zeros((1, 32, 32, 3))
+    _standin_lpips_weights(tmp_path)
+    wrong = tmp_path / "wrong"
+    wrong.mkdir()
+    torch.save({"features.0.weight": torch.zeros(64, 3, 3, 3)}, wrong / "alexnet-owt-7be5be79.pth")  # vgg's first conv
+    (wrong / "alex.pth").write_bytes((tmp_path / "alex.pth").read_bytes())
+    with pytest.raises(DataError, match=r"alexnet-owt-7be5be79.pth: no tensor features.0.weight of shape"):
+        ev.lpips_video(v, v, wrong)
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "alexnet-owt-7be5be79.pth").write_bytes((tmp_path / "alexnet-owt-7be5be79.pth").read_bytes())
+    (broken / "alex.pth").write_bytes(b"truncated")
+    with pytest.raises(DataError, match=r"alex.pth: not a torch state dict.*weights/v0.1/alex.pth"):
+        ev.lpips_video(v, v, broken)
+    no_lin = tmp_path / "no_lin"
+    no_lin.mkdir()
+    (no_lin / "alexnet-owt-7be5be79.pth").write_bytes((tmp_path / "alexnet-owt-7be5be79.pth").read_bytes())
+    r = ev.lpips_video(v, v, no_lin)
+    assert r.value is None and "alex.pth is missing" in r.status
+
+
+def test_lpips_of_constant_and_one_pixel_frames_is_finite(tmp_path):
+    _standin_lpips_weights(tmp_path)
+    for shape in ((2, 1, 1, 3), (2, 63, 63, 3)):  # below AlexNet's 11 px receptive start, and ordinary
+        zero, one = np.zeros(shape), np.ones(shape)
+        if shape[1] < 16:
+            with pytest.raises(ValueError, match="LPIPS needs frames of at least"):
+                ev.lpips_video(zero, one, tmp_path)
+            continue
+        r = ev.lpips_video(zero, one, tmp_path)
+        assert np.isfinite(r.per_item).all() and r.value > 0
+        assert ev.lpips_video(one, one, tmp_path).value == pytest.approx(0.0, abs=1e-7)
 
 
 # ----------------------------------------------------------------------------- aggregation

@@ -488,7 +488,8 @@ class Relight(Section):
 class Evaluation(Section):
     """Metrics whose networks need weights: local folders only, nothing is downloaded."""
 
-    lpips_weights: Optional[str] = Field(None, description="folder with alexnet-owt-7be5be79.pth (LPIPS)")
+    lpips_weights: Optional[str] = Field(None, description="folder with alexnet-owt-7be5be79.pth (torchvision's "
+                                         "AlexNet) and alex.pth (lpips' v0.1 linear layers), for LPIPS")
     clip_weights: Optional[str] = Field(None, description="a transformers CLIP model folder (T-CLIP)")
     external_dir: Optional[str] = Field(None, description="other methods' outputs: "
                                         "{external_dir}/{benchmark}/{method}/{pair_id}/{frame:04d}.exr")
