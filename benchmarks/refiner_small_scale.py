@@ -79,7 +79,7 @@ def main() -> int:
     from lightcrafter.refiner.baselines import apply_affine_colour, load_affine_colour, load_regressor, regress_video
     from lightcrafter.refiner.data import to_display_frames
     from lightcrafter.refiner.fit import fit_refiner, refine_fn, score_method
-    from lightcrafter.refiner.scoring import bootstrap_mean_ci
+    from lightcrafter.evaluation import bootstrap_ci
     from lightcrafter.refiner.strip import write_strip
     from lightcrafter.refiner.training import _logger
     from lightcrafter.refiner.validation import pair_group
@@ -184,9 +184,9 @@ def main() -> int:
         sel_by_seed[seed] = {
             "val_scenes": summ["carve"]["val_groups"], "fit_pairs": len(summ["fit_pairs"]),
             "chosen": summ["selection"]["chosen"], "fit_seconds": round(fit_s, 1), "test_refined": mean_scores(sel),
-            "refined_minus_proxy_psnr_db": bootstrap_mean_ci(
+            "refined_minus_proxy_psnr_db": bootstrap_ci(
                 [r["psnr_db"] - p["psnr_db"] for r, p in zip(sel["pairs"], proxy_test["pairs"])]),
-            "refined_minus_proxy_ssim": bootstrap_mean_ci(
+            "refined_minus_proxy_ssim": bootstrap_ci(
                 [r["ssim"] - p["ssim"] for r, p in zip(sel["pairs"], proxy_test["pairs"])]),
             **{f"test_{k}": mean_scores(v) for k, v in base.items()}}
         print(f"seed {seed}: chosen {chosen}; test refined {mean_scores(sel)} vs proxy {mean_scores(proxy_test)}; "
@@ -211,7 +211,7 @@ def main() -> int:
     def ci_block(per_pair: dict) -> dict:
         clip_means = [float(np.mean(v)) for v in per_pair.values()]
         pooled = [x for v in per_pair.values() for x in v]
-        return {"per_clip_seed_mean": bootstrap_mean_ci(clip_means), "pooled_clip_x_seed": bootstrap_mean_ci(pooled)}
+        return {"per_clip_seed_mean": bootstrap_ci(clip_means), "pooled_clip_x_seed": bootstrap_ci(pooled)}
 
     differences = {meth: {k: ci_block(v) for k, v in d.items()} for meth, d in diffs.items()}
 
@@ -241,9 +241,9 @@ def main() -> int:
             row = {"train_scenes": n, "seed": seed, "scenes": scenes, "val_scenes": summ["carve"]["val_groups"],
                    "fit_pairs": len(summ["fit_pairs"]), "chosen": summ["selection"]["chosen"],
                    "fit_seconds": round(fit_s, 1), "test_refined": mean_scores(sel),
-                   "refined_minus_proxy_psnr_db": bootstrap_mean_ci(
+                   "refined_minus_proxy_psnr_db": bootstrap_ci(
                        [r["psnr_db"] - p["psnr_db"] for r, p in zip(sel["pairs"], proxy_test["pairs"])]),
-                   "refined_minus_proxy_ssim": bootstrap_mean_ci(
+                   "refined_minus_proxy_ssim": bootstrap_ci(
                        [r["ssim"] - p["ssim"] for r, p in zip(sel["pairs"], proxy_test["pairs"])])}
             reg = load_regressor(sub / "model.pt")
             if reg is not None:

@@ -73,7 +73,8 @@ the lightings of a scene, then over scenes, so unequal clip counts do not reweig
 :func:`group_table` gives the per-lighting / per-scene tables. Uncertainty: :func:`bootstrap_ci`
 (percentile bootstrap of the mean over clips) and :func:`paired_bootstrap_ci` (of the mean of
 per-clip differences between two methods on the same clips), :data:`BOOTSTRAP_RESAMPLES` = 10 000
-resamples, seed 0, 95 %.
+resamples, seed 0, 95 %, from :data:`MIN_CLIPS_FOR_INTERVAL` clips on ("too few clips for an interval"
+below it).
 
 Run time (benchmarks/evaluation_cost.py on synthetic clips, 2-core CPU; CPU seconds of the process,
 the machine was shared so wall times were ~2.5x these): a 49-frame 720x480 clip costs PSNR 0.9 s,
@@ -113,6 +114,11 @@ MOTION_BOUNDARY_BETA = 0.002
 BOOTSTRAP_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 0
 BOOTSTRAP_CONFIDENCE = 0.95
+#: fewest clips an interval is computed from; below it results say "too few clips for an interval". A
+#: nominal 95 % percentile bootstrap of a mean of normal values covers the true mean in 76 % of samples of 3,
+#: 84 % of 5, 89 % of 6 to 10 and 92 % of 12 (1000 simulated samples each, 2000 resamples): from 6 on it is
+#: near its large-sample behaviour.
+MIN_CLIPS_FOR_INTERVAL = 6
 
 
 
@@ -626,22 +632,34 @@ def paper_average(records: Sequence[Mapping], metric: str, levels: Sequence[str]
 
 def bootstrap_ci(values: Sequence[float], n_resamples: int = BOOTSTRAP_RESAMPLES,
                  confidence: float = BOOTSTRAP_CONFIDENCE, seed: int = BOOTSTRAP_SEED) -> dict:
-    """Percentile bootstrap CI of the mean of per-clip values (clips resampled with replacement)."""
+    """Percentile bootstrap CI of the mean of per-clip values (clips resampled with replacement): the one
+    interval of the project and its one shape, {"mean", "low", "high", "n", "n_resamples", "confidence",
+    "seed", "method", "too_few"}.
+
+    Below :data:`MIN_CLIPS_FOR_INTERVAL` values ``low`` and ``high`` are None and ``too_few`` says so (a
+    percentile bootstrap over 3 values is only their range, and no verdict may rest on it). Empty or
+    non-finite input is a ValueError."""
     v = np.asarray(values, np.float64)
-    if v.ndim != 1 or v.size < 2 or not np.isfinite(v).all():
-        raise ValueError(f"bootstrap_ci: need at least 2 finite per-clip values, got {v.shape} "
+    if v.ndim != 1 or v.size < 1 or not np.isfinite(v).all():
+        raise ValueError(f"bootstrap_ci: need finite per-clip values, got {v.shape} "
                          f"({int((~np.isfinite(v)).sum()) if v.size else 0} non-finite)")
+    out = {"mean": float(v.mean()), "low": None, "high": None, "n": int(v.size), "n_resamples": int(n_resamples),
+           "confidence": float(confidence), "seed": int(seed), "method": "percentile bootstrap over clips",
+           "too_few": None}
+    if v.size < MIN_CLIPS_FOR_INTERVAL:
+        out["too_few"] = f"too few clips for an interval ({v.size} < {MIN_CLIPS_FOR_INTERVAL})"
+        return out
     rng = np.random.default_rng(seed)
     means = v[rng.integers(0, v.size, size=(n_resamples, v.size))].mean(axis=1)
     lo, hi = np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])
-    return {"mean": float(v.mean()), "low": float(lo), "high": float(hi), "n": int(v.size),
-            "n_resamples": int(n_resamples), "confidence": float(confidence), "seed": int(seed),
-            "method": "percentile bootstrap over clips"}
+    out.update(low=float(lo), high=float(hi))
+    return out
 
 
 def paired_bootstrap_ci(a: Sequence[float], b: Sequence[float], n_resamples: int = BOOTSTRAP_RESAMPLES,
                         confidence: float = BOOTSTRAP_CONFIDENCE, seed: int = BOOTSTRAP_SEED) -> dict:
-    """Percentile bootstrap CI of mean(a - b) over the same clips (pairs resampled together)."""
+    """Percentile bootstrap CI of mean(a - b) over the same clips (pairs resampled together); the shape of
+    :func:`bootstrap_ci`."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     if a.shape != b.shape:
         raise ValueError(f"paired_bootstrap_ci: {a.shape} vs {b.shape} values; pair the same clips")

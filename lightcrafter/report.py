@@ -121,9 +121,19 @@ def _not_computed(what: str, why: str) -> str:
 
 # ----------------------------------------------------------------------------- tables
 def _cell(mean: dict, ci: dict, method: str, metric: str):
+    """(mean, interval text) of one method and metric; the interval is a bootstrap_ci record (or a
+    [low, high] pair); "n < 6" stands where there were too few clips for one."""
     v = (mean.get(method) or {}).get(metric)
     c = (ci.get(method) or {}).get(metric)
-    return v, c
+    if isinstance(c, dict):
+        from .evaluation import MIN_CLIPS_FOR_INTERVAL
+
+        c = "too few" if c.get("too_few") else (c.get("low"), c.get("high"))
+        if c == "too few":
+            return v, f"n < {MIN_CLIPS_FOR_INTERVAL}"
+    if c and None not in c:
+        return v, f"[{c[0]:.3g}, {c[1]:.3g}]"
+    return v, ""
 
 
 def _table_grid(evals: dict[str, dict], rows: list[tuple[str, str, str]], benches=TABLE_BENCHMARKS):
@@ -165,7 +175,7 @@ def metrics_table(evals: dict[str, dict], rows: list[tuple[str, str, str]], benc
                 body += "<td class='nc'>&ndash;</td>"
                 continue
             cls = " class='best'" if _is_best(best, b, m, v) else ""
-            ci = f"<br><span class='ci'>[{c[0]:.3g}, {c[1]:.3g}]</span>" if c and None not in c else ""
+            ci = f"<br><span class='ci'>{_esc(c)}</span>" if c else ""
             body += f"<td{cls}>{v:.4g}{ci}</td>"
         body += "</tr>"
     return f"<table>{head1}{head2}{body}</table>"
@@ -188,7 +198,7 @@ def metrics_table_markdown(evals: dict[str, dict], rows: list[tuple[str, str, st
                 cells.append("–")
                 continue
             txt = f"**{v:.4g}**" if _is_best(best, b, m, v) else f"{v:.4g}"
-            cells.append(txt + (f" [{c[0]:.3g}, {c[1]:.3g}]" if c and None not in c else ""))
+            cells.append(txt + (f" {c}" if c else ""))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -511,8 +521,8 @@ def ordering_checks(evals: dict, metric: str = "psnr_db") -> list[dict]:
     sides scored (95 % paired bootstrap interval, :func:`lightcrafter.evaluation.paired_bootstrap_ci`).
 
     ``verdict``: "holds" when the interval lies above 0, "reversed" when below 0, "inconclusive" when it
-    spans 0, "holds on the mean" / "reversed on the mean" when there are fewer than 2 paired clips, and
-    "not computed" when a side is missing."""
+    spans 0, "too few clips for an interval (n < 6)" below :data:`lightcrafter.evaluation.MIN_CLIPS_FOR_INTERVAL`
+    paired clips (no verdict from the means), and "not computed" when a side is missing."""
     from .evaluation import paired_bootstrap_ci
 
     out = []
@@ -526,13 +536,16 @@ def ordering_checks(evals: dict, metric: str = "psnr_db") -> list[dict]:
         rec.update(left_mean=lm, right_mean=rm)
         lc, rc = _per_clip(evals, *left, metric), _per_clip(evals, *right, metric)
         ids = sorted(set(lc) & set(rc))
-        if len(ids) >= 2:
+        if ids:
             ci = paired_bootstrap_ci([lc[i] for i in ids], [rc[i] for i in ids])
             rec.update(diff_mean=ci["mean"], diff_low=ci["low"], diff_high=ci["high"], clips=len(ids))
-            rec["verdict"] = "holds" if ci["low"] > 0 else "reversed" if ci["high"] < 0 else "inconclusive"
+            if ci["too_few"]:
+                rec["verdict"] = ci["too_few"]
+            else:
+                rec["verdict"] = "holds" if ci["low"] > 0 else "reversed" if ci["high"] < 0 else "inconclusive"
         else:
-            rec.update(diff_mean=lm - rm, clips=len(ids))
-            rec["verdict"] = "holds on the mean" if lm > rm else "reversed on the mean"
+            rec.update(diff_mean=lm - rm, clips=0)
+            rec["verdict"] = "no clips scored by both sides"
         out.append(rec)
     return out
 

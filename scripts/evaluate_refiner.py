@@ -47,12 +47,10 @@ def _folder_video(folder: Path, n: int, exposure_ev: float) -> np.ndarray | None
     return None
 
 
-def _ci(values) -> list | None:
+def _ci(values) -> dict | None:
+    """:func:`lightcrafter.evaluation.bootstrap_ci` of the finite values (None when there are none)."""
     v = [x for x in values if x is not None and np.isfinite(x)]
-    if len(v) < 2:
-        return None
-    c = ev.bootstrap_ci(v)
-    return [c["low"], c["high"]]
+    return ev.bootstrap_ci(v) if v else None
 
 
 def main() -> int:
@@ -126,11 +124,8 @@ def main() -> int:
             for k in METRICS:
                 both = [(r[m][k], r["proxy"][k]) for r in rows if m in r and r[m].get(k) is not None
                         and r["proxy"].get(k) is not None]
-                if len(both) >= 2:
-                    c = ev.paired_bootstrap_ci([x for x, _ in both], [y for _, y in both])
-                    d[k] = {"mean": c["mean"], "lo": c["low"], "hi": c["high"], "n": c["n"]}
-                elif both:
-                    d[k] = {"mean": both[0][0] - both[0][1], "lo": None, "hi": None, "n": 1}
+                if both:
+                    d[k] = ev.paired_bootstrap_ci([x for x, _ in both], [y for _, y in both])
             vs_proxy[m] = d
     ae = [r["ae_round_trip_psnr_db"] for r in rows if r.get("ae_round_trip_psnr_db") is not None]
     write_json(a.out, {"benchmark": Path(a.pairs).parent.name, "split": a.split, "num_pairs": len(rows),

@@ -403,6 +403,16 @@ def test_bootstrap_ci_covers_the_mean_and_narrows():
     v = rng.normal(0, 1, 30)
     assert ev.bootstrap_ci(v) == ev.bootstrap_ci(v)                  # fixed seed: reproducible
     assert ev.bootstrap_ci(v)["n_resamples"] == ev.BOOTSTRAP_RESAMPLES
+    # below the documented minimum: the mean, no interval, and the reason; nothing at all is an error
+    few = ev.bootstrap_ci([1.0, 2.0, 3.0])
+    assert few["mean"] == 2.0 and few["low"] is None and few["high"] is None and few["n"] == 3
+    assert few["too_few"] == f"too few clips for an interval (3 < {ev.MIN_CLIPS_FOR_INTERVAL})"
+    assert set(few) == set(ev.bootstrap_ci(v))                       # one shape
+    assert ev.bootstrap_ci(v)["too_few"] is None
+    assert ev.bootstrap_ci([0.5] * 8)["low"] == ev.bootstrap_ci([0.5] * 8)["high"] == 0.5  # constant values
+    for bad in ([], [1.0, float("nan")] * 4):
+        with pytest.raises(ValueError, match="need finite per-clip values"):
+            ev.bootstrap_ci(bad)
 
 
 def test_paired_bootstrap_ci():

@@ -74,7 +74,7 @@ def test_train_infer_evaluate(tmp_path):
     for k in m["methods"]:
         assert np.isfinite(m["mean"][k]["psnr_db"]) and 0 < m["mean"][k]["ssim"] <= 1
     d = m["vs_proxy"]["refined"]["psnr_db"]
-    assert d["n"] == 1 and d["lo"] is None and d["hi"] is None  # one test pair: no interval is claimed
+    assert d["n"] == 1 and d["low"] is None and d["high"] is None and d["too_few"].startswith("too few clips")
     assert d["mean"] == pytest.approx(m["mean"]["refined"]["psnr_db"] - m["mean"]["proxy"]["psnr_db"])
 
 

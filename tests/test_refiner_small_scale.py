@@ -184,15 +184,6 @@ def test_affine_colour_fit_recovers_a_known_map():
     assert torch.allclose(apply_affine_colour(fit, items[0]["proxy"]), items[0]["target"].clamp(-1, 1), atol=1e-5)
 
 
-def test_bootstrap_interval():
-    from lightcrafter.refiner.scoring import bootstrap_mean_ci
-
-    ci = bootstrap_mean_ci([1.0, 2.0, 3.0, 4.0, 5.0])
-    assert ci["lo"] < ci["mean"] == 3.0 < ci["hi"] and 1.0 <= ci["lo"] and ci["hi"] <= 5.0
-    assert bootstrap_mean_ci([0.5] * 4) == {**bootstrap_mean_ci([0.5] * 4), "lo": 0.5, "hi": 0.5}
-    assert bootstrap_mean_ci([1.0, -1.0] * 10, seed=3) == bootstrap_mean_ci([1.0, -1.0] * 10, seed=3)
-
-
 def test_frame_strip_layout():
     import numpy as np
 

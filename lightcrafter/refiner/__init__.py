@@ -12,7 +12,7 @@ Public API:
   fit_refiner(cfg, pairs, out_dir)              (fit.py: carve validation, train, select, baselines -> model.pt)
   carve_validation                              (validation.py: whole train-split scenes held out)
   fit_affine_colour, regress_video              (baselines.py)
-  clip_scores, bootstrap_mean_ci                (scoring.py)
+  clip_scores                                   (scoring.py)
   write_strip                                   (strip.py: input | proxy | refined | target PNGs)
 
 Small scale. The paper fine-tunes a 5B model pretrained on video, so it can sample from pure noise.
@@ -49,7 +49,7 @@ _WHERE = {
     "load_model": "training", "train": "training",
     "fit_refiner": "fit", "carve_validation": "validation",
     "fit_affine_colour": "baselines", "regress_video": "baselines",
-    "clip_scores": "scoring", "bootstrap_mean_ci": "scoring", "write_strip": "strip",
+    "clip_scores": "scoring", "write_strip": "strip",
 }
 
 
@@ -64,5 +64,5 @@ __all__ = [
     "FrameCountError", "check_frames", "latent_frames", "pad_to_4k1", "MissingWeightsError", "Refiner",
     "refine_video", "sample_latent", "build_scheduler", "fused_prediction", "plan_windows", "tent_weights",
     "load_model", "train", "fit_refiner", "carve_validation", "fit_affine_colour", "regress_video",
-    "clip_scores", "bootstrap_mean_ci", "write_strip",
+    "clip_scores", "write_strip",
 ]

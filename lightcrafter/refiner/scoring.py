@@ -18,18 +18,3 @@ def clip_scores(video, target) -> dict:
 
     a, b = to_display_frames(video), to_display_frames(target)
     return {"psnr_db": video_psnr_db(a, b), "ssim": video_ssim(a, b)}
-
-
-def bootstrap_mean_ci(values, n_resamples: int = 10000, level: float = 0.95, seed: int = 0) -> dict:
-    """Mean of ``values`` with a percentile bootstrap confidence interval (resampling the values).
-
-    Returns {"mean", "lo", "hi", "n", "level", "n_resamples"}; lo = hi = mean for a single value.
-    """
-    v = np.asarray(list(values), np.float64)
-    if v.size == 0:
-        raise ValueError("bootstrap of no values")
-    rng = np.random.default_rng(seed)
-    means = v[rng.integers(0, v.size, size=(n_resamples, v.size))].mean(axis=1)
-    a = (1 - level) / 2
-    return {"mean": float(v.mean()), "lo": float(np.quantile(means, a)), "hi": float(np.quantile(means, 1 - a)),
-            "n": int(v.size), "level": level, "n_resamples": n_resamples}
