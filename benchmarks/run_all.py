@@ -4,7 +4,9 @@
     make bench ONLY=cycles_spp,proxy_spp
 
 Benchmarks that need pipeline outputs (proxy_vs_cycles reads results/gt, refiner_clean_buffers
-the clean_buffers pairs) first bring the default pipeline up to them via Snakemake.
+the clean_buffers pairs) first bring the default pipeline up to them via Snakemake. At the end it
+lists every benchmark it ran with its exit status and wall seconds (the pipeline catch-up counted
+apart) and writes the list to results/bench/run_all.json.
 """
 
 from __future__ import annotations
@@ -28,16 +30,28 @@ def main() -> int:
     sys.path.insert(0, str(REPO))
     only = [s for s in os.environ.get("ONLY", "").split(",") if s]
     names = [n for n in ORDER if (REPO / "benchmarks" / f"{n}.py").is_file() and (not only or n in only)]
-    failed = []
+    failed, ran = [], []
     for name in names:
+        t_pipe = 0.0
         if name in NEEDS_PIPELINE:
+            t0 = time.perf_counter()
             subprocess.run([sys.executable, "-m", "snakemake", NEEDS_PIPELINE[name]], cwd=REPO, check=True)
+            t_pipe = time.perf_counter() - t0
         t0 = time.perf_counter()
         print(f"== benchmark {name}", flush=True)
         res = subprocess.run([sys.executable, str(REPO / "benchmarks" / f"{name}.py")], cwd=REPO)
-        print(f"== {name}: exit {res.returncode} after {time.perf_counter() - t0:.0f} s", flush=True)
+        sec = time.perf_counter() - t0
+        print(f"== {name}: exit {res.returncode} after {sec:.0f} s", flush=True)
+        ran.append({"benchmark": name, "exit": res.returncode, "seconds": round(sec, 1),
+                    "pipeline_target": NEEDS_PIPELINE.get(name), "pipeline_seconds": round(t_pipe, 1)})
         if res.returncode:
             failed.append(name)
+    print(f"{'benchmark':24s} {'exit':>4s} {'seconds':>8s} {'pipeline s':>10s}")
+    for r in ran:
+        print(f"{r['benchmark']:24s} {r['exit']:4d} {r['seconds']:8.0f} {r['pipeline_seconds']:10.0f}")
+    from lightcrafter.io import write_json
+
+    write_json(REPO / "results" / "bench" / "run_all.json", {"benchmarks": ran, "cores": os.cpu_count()})
     from lightcrafter.report import build_report
 
     print(f"report: {build_report(REPO / 'results')}")
