@@ -170,3 +170,32 @@ def test_tables_follow_the_registries_mit_results_reach_them():
     text = metrics_table_markdown(evals, [("Ours (full)", "full", "refined")])
     assert "mit PSNR" in text and "17.5" in text and "synthetic PSNR" in text
     assert "real PSNR" not in text  # no real results: no columns
+
+
+def test_report_folder_is_self_contained(tmp_path):
+    """Media from elsewhere in the results are copied under report/media/; every link stays inside the
+    folder, so a copy of the folder alone shows them."""
+    import re
+    import shutil
+
+    from lightcrafter.report import _img_tag, _video_tag
+
+    results = tmp_path / "results"
+    strip = results / "refined" / "full" / "synthetic" / "p0" / "strip.png"
+    strip.parent.mkdir(parents=True)
+    strip.write_bytes(b"\x89PNG fake")
+    video = results / "gt" / "s0" / "t0" / "rgb" / "L0.mp4"
+    video.parent.mkdir(parents=True)
+    video.write_bytes(b"fake mp4")
+    out = results / "report"
+    out.mkdir()
+    inside = out / "toy.png"
+    inside.write_bytes(b"\x89PNG here")
+    html = _img_tag(strip, out) + _video_tag(video, out) + _img_tag(inside, out)
+    links = re.findall(r"src='([^']+)'", html)
+    assert links == ["media/refined/full/synthetic/p0/strip.png", "media/gt/s0/t0/rgb/L0.mp4", "toy.png"]
+    copy = shutil.copytree(out, tmp_path / "shared_report")
+    assert all((copy / link).read_bytes() == src.read_bytes() for link, src in zip(links, (strip, video, inside)))
+    strip.write_bytes(b"\x89PNG newer, longer")  # a rerun's newer media replace the copies
+    _img_tag(strip, out)
+    assert (out / links[0]).read_bytes() == strip.read_bytes()
