@@ -255,6 +255,57 @@ def temporal_difference(video: np.ndarray) -> np.ndarray:
     return np.abs(np.diff(v, axis=0)).reshape(len(v) - 1, -1).mean(axis=1)
 
 
+# ----------------------------------------------------------------------------- coding artifacts
+#: latent frame 0 of CogVideoX's autoencoder (and the tiny preset's) is pixel frame 0 and latent frame k >= 1
+#: holds pixel frames 4k-3..4k: transitions 0 -> 1, 4 -> 5, 8 -> 9, ... cross a temporal block boundary
+LATENT_FRAMES_PER_BLOCK = 4
+
+
+def blockiness(video, period: int = 8) -> MetricResult:
+    """Block-grid texture (no reference): mean |horizontal or vertical neighbour difference| of luma across
+    the grid lines every ``period`` pixels (between pixel ``period*k - 1`` and ``period*k``) over the same
+    mean elsewhere. 1 = no grid (natural images scatter around 1); a patch autoencoder's 8x8 blocks raise it
+    at period 8 and 16. Per frame, then the mean; not computed for frames narrower than 2 periods or with no
+    gradient at all (a constant frame)."""
+    v = _as_display_video(video, "video")
+    n, h, w, _ = v.shape
+    if min(h, w) < 2 * period:
+        return MetricResult.not_computed(f"blockiness_{period}", f"frames {w}x{h} are smaller than 2 periods "
+                                         f"of {period} px")
+    luma = v @ np.array([0.2126, 0.7152, 0.0722])
+    dx, dy = np.abs(np.diff(luma, axis=2)), np.abs(np.diff(luma, axis=1))  # (n, h, w-1), (n, h-1, w)
+    on_x = (np.arange(w - 1) + 1) % period == 0
+    on_y = (np.arange(h - 1) + 1) % period == 0
+    vals = []
+    for i in range(n):
+        grid = np.concatenate([dx[i][:, on_x].ravel(), dy[i][on_y].ravel()])
+        rest = np.concatenate([dx[i][:, ~on_x].ravel(), dy[i][~on_y].ravel()])
+        vals.append(float(grid.mean() / rest.mean()) if rest.mean() > 1e-9 else float("nan"))
+    value = _finite_mean(vals)
+    if value is None:
+        return MetricResult.not_computed(f"blockiness_{period}", "no gradient in any frame (constant frames)")
+    return MetricResult(f"blockiness_{period}", value, tuple(vals), info={"period_px": period, "input": "luma"})
+
+
+def block_jump(video, block: int = LATENT_FRAMES_PER_BLOCK) -> MetricResult:
+    """Temporal jumps at the autoencoder's frame blocks (no reference): mean |frame t+1 - frame t| over the
+    transitions that cross a block boundary (t = 0, 4, 8, ...: frame 0 alone is latent frame 0 and pixel
+    frame 4k the last of latent frame k) over the same mean elsewhere. 1 = no jump at block boundaries. Not computed for clips with no boundary
+    transition and another, or without motion at all (zero flow, identical frames)."""
+    v = _as_display_video(video, "video")
+    if len(v) < block + 2:
+        return MetricResult.not_computed(f"jump_{block}", f"{len(v)} frames: no block boundary with a "
+                                         "transition on either side")
+    d = temporal_difference(v)  # d[t] = |frame t+1 - frame t|
+    t = np.arange(len(d))
+    at = t % block == 0
+    other = ~at
+    if d[other].mean() <= 1e-9:
+        return MetricResult.not_computed(f"jump_{block}", "the frames do not change between boundaries")
+    return MetricResult(f"jump_{block}", float(d[at].mean() / d[other].mean()), tuple(float(x) for x in d),
+                        info={"frames_per_block": block, "boundary_transitions": [int(x) for x in t[at]]})
+
+
 # ----------------------------------------------------------------------------- optical flow
 def _luma_u8(frame: np.ndarray) -> np.ndarray:
     import cv2

@@ -425,3 +425,28 @@ def test_paired_bootstrap_ci():
     assert (ci["high"] - ci["low"]) < 0.2 * (unpaired["high"] - unpaired["low"])
     with pytest.raises(ValueError, match="pair the same clips"):
         ev.paired_bootstrap_ci(better, base[:-1])
+
+
+def test_blockiness_and_block_jump_find_the_grid_and_the_jumps_and_nothing_else():
+    rng = np.random.default_rng(0)
+    from scipy.ndimage import gaussian_filter as gf
+
+    smooth = np.clip(0.5 + gf(rng.normal(0, 0.3, (9, 64, 96, 3)), (0, 3, 3, 0)), 0, 1)
+    b8 = ev.blockiness(smooth, 8).value
+    assert 0.8 < b8 < 1.2                                    # a natural image has no grid
+    # the same frames with their 8x8 blocks' means shifted by a little: an 8-px grid, also seen at 16 px
+    offs = np.kron(rng.normal(0, 0.03, (9, 8, 12, 1)), np.ones((1, 8, 8, 1)))
+    blocky = np.clip(smooth + offs, 0, 1)
+    assert ev.blockiness(blocky, 8).value > 1.5 * b8 and ev.blockiness(blocky, 16).value > 1.3
+    # a slow drift with jumps at transitions 0 and 4: the jump ratio rises well above 1; a steady drift is 1
+    steps = np.array([0.0, 3, 4, 5, 6, 9, 10, 11, 12]) * 0.01
+    drift = np.clip(smooth[:1] + steps[:, None, None, None], 0, 1)
+    assert ev.block_jump(drift).value > 2.5
+    steady = np.clip(smooth[:1] + np.arange(9)[:, None, None, None] * 0.01, 0, 1)
+    assert ev.block_jump(steady).value == pytest.approx(1.0, abs=0.05)
+    assert ev.block_jump(drift).info["boundary_transitions"] == [0, 4]  # 9 frames: transitions 0..7
+    # no answer: constant frames, frozen video, too few frames or pixels
+    const = np.full((9, 64, 96, 3), 0.4)
+    assert not ev.blockiness(const).computed and "constant" in ev.blockiness(const).status
+    assert not ev.block_jump(const).computed and not ev.block_jump(smooth[:5]).computed
+    assert not ev.blockiness(smooth[:, :10, :10]).computed
