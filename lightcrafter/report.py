@@ -33,7 +33,12 @@ from .io import atomic_path, read_json, write_json, write_text
 from .datasets import BENCHMARKS, VARIANTS
 
 METRIC_LABELS = {"psnr_db": ("PSNR", True), "ssim": ("SSIM", True), "lpips": ("LPIPS", False),
-                 "t_clip": ("T-CLIP", True), "warp_ssim": ("Warp-SSIM", True)}
+                 "t_clip": ("T-CLIP", True), "warp_ssim": ("Warp-SSIM", True),
+                 "blockiness_8": ("blockiness 8 px", None), "blockiness_16": ("blockiness 16 px", None),
+                 "jump_4": ("4-frame jump", None)}
+# No-reference coding-artifact metrics (lightcrafter.evaluation.blockiness / block_jump): judged against the
+# target's own value, so no direction is "better" by itself.
+ARTIFACT_METRICS = ("blockiness_8", "blockiness_16", "jump_4")
 # Table columns per held-out benchmark; the tables iterate the registry (lightcrafter.datasets.BENCHMARKS), and a
 # benchmark without results (e.g. mit without mit.root) has no columns.
 TABLE_METRICS = {"synthetic": ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim"), "real": ("psnr_db", "ssim", "lpips"),
@@ -230,6 +235,28 @@ def not_computed_notes(evals: dict) -> str:
                    for k, w in sorted(notes.items()))
 
 
+def artifacts_section(evals: dict) -> str:
+    """Blockiness and 4-frame jump of every method next to the target's own (1 = no grid / no jump), for
+    the first variant on each held-out benchmark."""
+    v0 = _first_variant(evals)
+    rows = []
+    for (v, b), e in sorted(evals.items()):
+        if v != v0:
+            continue
+        mean = e.get("mean", {})
+        for m in [*e.get("methods", []), "target"]:
+            vals = {k: (mean.get(m) or {}).get(k) for k in ARTIFACT_METRICS}
+            if any(x is not None for x in vals.values()):
+                rows.append({"benchmark": b, "method": METHOD_LABELS.get(m, m), **vals})
+    if not rows:
+        return _not_computed("Coding artifacts", "no blockiness / jump values in the evaluations")
+    return ("<h3>Coding artifacts (no reference; 1 = none)</h3><p class='note'>Blockiness: luma gradient across "
+            "the 8 / 16 px grid lines over elsewhere; 4-frame jump: frame change across the autoencoder's 4-frame "
+            f"blocks over elsewhere. Variant <code>{_esc(v0)}</code>; compare each method with the target.</p>"
+            + _table(rows, ["benchmark", "method", *ARTIFACT_METRICS],
+                     {k: METRIC_LABELS[k][0] for k in ARTIFACT_METRICS}))
+
+
 # ----------------------------------------------------------------------------- run time
 # Benchmark folders that hold several rules' files: (folder, file-name prefix) -> rule (first match wins).
 _SHARED_BENCHMARK_FOLDERS = [
@@ -373,6 +400,7 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
         parts.append("<h2>Table 2: ablations of the training data</h2>")
         parts.append(metrics_table(evals, [(VARIANT_LABELS.get(v, v), v, "refined") for v in full]))
         parts.append(not_computed_notes(evals))
+        parts.append(artifacts_section(evals))
         parts.append(_ordering_checks(orderings))
         parts.append(_selection_section(evals))
     else:

@@ -33,7 +33,15 @@ from lightcrafter import evaluation as ev
 from lightcrafter.io import DataError, linear_to_display, read_json, read_rgb_exr, write_json
 from lightcrafter.refiner.data import PairsDataset, load_frames, to_display_frames
 
-METRICS = ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim")
+METRICS = ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim", "blockiness_8", "blockiness_16", "jump_4")
+#: no-reference metrics, also measured on the target (``mean["target"]``): a method's artifacts are judged
+#: against the target's own value
+ARTIFACT_METRICS = ("blockiness_8", "blockiness_16", "jump_4")
+
+
+def _artifacts(video) -> dict:
+    return {"blockiness_8": ev.blockiness(video, 8), "blockiness_16": ev.blockiness(video, 16),
+            "jump_4": ev.block_jump(video, ev.LATENT_FRAMES_PER_BLOCK)}
 
 
 def _folder_video(folder: Path, n: int, exposure_ev: float) -> np.ndarray | None:
@@ -106,15 +114,19 @@ def main() -> int:
                    "t_clip": ev.t_clip(v, embedder=embedder) if not isinstance(embedder, str)
                    else ev.MetricResult("t_clip", None, None, f"not computed: {embedder}"),
                    "warp_ssim": ev.warp_ssim(v, flows=flows) if flows is not None
-                   else ev.MetricResult("warp_ssim", None, None, "not computed: a one-frame clip has no motion")}
+                   else ev.MetricResult("warp_ssim", None, None, "not computed: a one-frame clip has no motion"),
+                   **_artifacts(v)}
             row[name] = {k: r.value for k, r in res.items()}
             for k, r in res.items():
                 if r.value is None:
                     not_computed[k] = r.status.removeprefix("not computed: ")
             if name not in methods:
                 methods.append(name)
+        row["target"] = {k: r.value for k, r in _artifacts(tgt).items()}
         rows.append(row)
     mean, ci, vs_proxy = {}, {}, {}
+    tv = {k: [r["target"][k] for r in rows if r["target"].get(k) is not None] for k in ARTIFACT_METRICS}
+    mean["target"] = {k: (float(np.mean(v)) if v else None) for k, v in tv.items()}
     for m in methods:
         vals = {k: [r[m][k] for r in rows if m in r and r[m].get(k) is not None] for k in METRICS}
         mean[m] = {k: (float(np.mean(v)) if v else None) for k, v in vals.items()}

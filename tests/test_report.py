@@ -199,3 +199,15 @@ def test_report_folder_is_self_contained(tmp_path):
     strip.write_bytes(b"\x89PNG newer, longer")  # a rerun's newer media replace the copies
     _img_tag(strip, out)
     assert (out / links[0]).read_bytes() == strip.read_bytes()
+
+
+def test_artifacts_section_puts_each_method_beside_the_target():
+    from lightcrafter.report import artifacts_section
+
+    evals = {("full", "synthetic"): {"methods": ["proxy", "refined"], "mean": {
+        "proxy": {"blockiness_8": 1.01, "blockiness_16": 1.0, "jump_4": 1.1},
+        "refined": {"blockiness_8": 2.4, "blockiness_16": 2.9, "jump_4": 3.2},
+        "target": {"blockiness_8": 1.02, "blockiness_16": 1.01, "jump_4": 1.05}}}}
+    html = artifacts_section(evals)
+    assert "Refined (LightCrafter)" in html and "target" in html and "2.4" in html and "3.2" in html
+    assert "not computed" in artifacts_section({("full", "synthetic"): {"methods": ["proxy"], "mean": {}}})
