@@ -67,6 +67,11 @@ the digit with published tables.
 
 Aggregation
 -----------
+**The registry** (:data:`METRICS`): each metric is one :class:`Metric` entry (name, label, direction,
+needs-reference, function of the video and a :class:`Context`); ``scripts/evaluate_refiner.py`` computes
+every entry for every method (:func:`evaluate_video`) and the no-reference ones on the target too
+(:func:`evaluate_target`), and the report takes its labels and directions from it.
+
 Per clip: the mean over frames (or transitions). The paper averages "across frames, illuminations,
 and scenes": :func:`paper_average` takes the mean over clips of one (scene, lighting), then over
 the lightings of a scene, then over scenes, so unequal clip counts do not reweight scenes;
@@ -90,7 +95,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -593,8 +598,8 @@ def lpips_video(method, target, lpips_weights: str | Path | None = None, net: st
     from lightcrafter.lpips_net import MIN_SIDE
 
     if min(m.shape[1:3]) < MIN_SIDE.get(net, 0):
-        raise ValueError(f"LPIPS needs frames of at least {MIN_SIDE[net]} px on each side for its {net} backbone, "
-                         f"got {m.shape[2]}x{m.shape[1]}; evaluate at a larger size")
+        return MetricResult.not_computed("lpips", f"frames {m.shape[2]}x{m.shape[1]} are smaller than the {MIN_SIDE[net]} "
+                                         f"px the {net} backbone needs on each side", net=net)
 
     def to_t(x):
         return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32)) * 2.0 - 1.0
@@ -609,22 +614,67 @@ def lpips_video(method, target, lpips_weights: str | Path | None = None, net: st
                               "lpips_weights": str(lpips_weights or "")})
 
 
-# ----------------------------------------------------------------------------- one clip
-def evaluate_clip(method, target, *, clip_weights=None, lpips_weights=None, lpips_net: str = "alex",
-                  flows: VideoFlows | None = None, embedder: ClipImageEmbedder | None = None) -> dict:
-    """All metrics of the paper for one (method, target) pair of display videos.
+# ----------------------------------------------------------------------------- the metric registry
+@dataclass
+class Context:
+    """What the metrics of one clip share: the target (display), its flows (None for one frame), and the
+    loaded networks or the reason each is not available (strings)."""
 
-    Returns {metric name: MetricResult}: psnr_db, ssim, lpips, t_clip (on the method's video),
-    warp_ssim (flow from the target, or the given ``flows`` of it).
-    """
-    m, t = _pair(method, target)
-    return {
-        "psnr_db": framewise_psnr(m, t),
-        "ssim": framewise_ssim(m, t),
-        "lpips": lpips_video(m, t, lpips_weights, lpips_net),
-        "t_clip": t_clip(m, clip_weights, embedder),
-        "warp_ssim": warp_ssim(m, t, flows=flows),
-    }
+    target: np.ndarray
+    flows: VideoFlows | None = None
+    lpips: object = "LPIPS not loaded"
+    clip: object = "CLIP not loaded"
+
+    @staticmethod
+    def of(target, lpips_weights=None, clip_weights=None) -> "Context":
+        t = _as_display_video(target, "target video")
+        return Context(t, compute_flows(t) if len(t) > 1 else None, load_lpips(lpips_weights),
+                       load_clip_embedder(clip_weights))
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One metric: ``name`` (results key), ``label`` (tables), ``higher_is_better`` (None: judged against the
+    target's own value, e.g. coding artifacts), ``needs_reference`` (False: also measured on the target) and
+    ``compute(video, ctx) -> MetricResult``."""
+
+    name: str
+    label: str
+    higher_is_better: bool | None
+    needs_reference: bool
+    compute: Callable[[np.ndarray, Context], MetricResult]
+
+
+def _needs(what, name):
+    return MetricResult.not_computed(name, what)
+
+
+METRICS: dict[str, Metric] = {m.name: m for m in (
+    Metric("psnr_db", "PSNR", True, True, lambda v, c: framewise_psnr(v, c.target)),
+    Metric("ssim", "SSIM", True, True, lambda v, c: framewise_ssim(v, c.target)),
+    Metric("lpips", "LPIPS", False, True, lambda v, c: _needs(c.lpips, "lpips") if isinstance(c.lpips, str)
+           else lpips_video(v, c.target, model=c.lpips)),
+    Metric("t_clip", "T-CLIP", True, False, lambda v, c: _needs(c.clip, "t_clip") if isinstance(c.clip, str)
+           else t_clip(v, embedder=c.clip)),
+    Metric("warp_ssim", "Warp-SSIM", True, True, lambda v, c: warp_ssim(v, flows=c.flows) if c.flows is not None
+           else _needs("a one-frame clip has no motion", "warp_ssim")),
+    Metric("blockiness_8", "blockiness 8 px", None, False, lambda v, c: blockiness(v, 8)),
+    Metric("blockiness_16", "blockiness 16 px", None, False, lambda v, c: blockiness(v, 16)),
+    Metric("jump_4", "4-frame jump", None, False, lambda v, c: block_jump(v, LATENT_FRAMES_PER_BLOCK)),
+)}
+
+
+def evaluate_video(video, ctx: Context, names: Sequence[str] | None = None) -> dict[str, MetricResult]:
+    """Every registered metric (or ``names``) of one display video against ``ctx.target``."""
+    v = _as_display_video(video, "method video")
+    if v.shape != ctx.target.shape:
+        raise ValueError(f"method video {v.shape} and target video {ctx.target.shape} differ in shape")
+    return {n: METRICS[n].compute(v, ctx) for n in (names or METRICS)}
+
+
+def evaluate_target(ctx: Context) -> dict[str, MetricResult]:
+    """The no-reference metrics of the target itself (what a method's artifacts are judged against)."""
+    return {n: m.compute(ctx.target, ctx) for n, m in METRICS.items() if not m.needs_reference}
 
 
 # ----------------------------------------------------------------------------- aggregation

@@ -31,14 +31,12 @@ import numpy as np
 
 from .io import atomic_path, read_json, write_json, write_text
 from .datasets import BENCHMARKS, VARIANTS
+from .evaluation import METRICS as EV_METRICS
 
-METRIC_LABELS = {"psnr_db": ("PSNR", True), "ssim": ("SSIM", True), "lpips": ("LPIPS", False),
-                 "t_clip": ("T-CLIP", True), "warp_ssim": ("Warp-SSIM", True),
-                 "blockiness_8": ("blockiness 8 px", None), "blockiness_16": ("blockiness 16 px", None),
-                 "jump_4": ("4-frame jump", None)}
-# No-reference coding-artifact metrics (lightcrafter.evaluation.blockiness / block_jump): judged against the
-# target's own value, so no direction is "better" by itself.
-ARTIFACT_METRICS = ("blockiness_8", "blockiness_16", "jump_4")
+# Label and direction of every metric: the registry (lightcrafter.evaluation.METRICS).
+METRIC_LABELS = {n: (m.label, m.higher_is_better) for n, m in EV_METRICS.items()}
+# Metrics without a better direction (coding artifacts): judged against the target's own value.
+ARTIFACT_METRICS = tuple(n for n, m in EV_METRICS.items() if m.higher_is_better is None)
 # Table columns per held-out benchmark; the tables iterate the registry (lightcrafter.datasets.BENCHMARKS), and a
 # benchmark without results (e.g. mit without mit.root) has no columns.
 TABLE_METRICS = {"synthetic": ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim"), "real": ("psnr_db", "ssim", "lpips"),

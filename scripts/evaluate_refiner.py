@@ -33,15 +33,7 @@ from lightcrafter import evaluation as ev
 from lightcrafter.io import DataError, linear_to_display, read_json, read_rgb_exr, write_json
 from lightcrafter.refiner.data import PairsDataset, load_frames, to_display_frames
 
-METRICS = ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim", "blockiness_8", "blockiness_16", "jump_4")
-#: no-reference metrics, also measured on the target (``mean["target"]``): a method's artifacts are judged
-#: against the target's own value
-ARTIFACT_METRICS = ("blockiness_8", "blockiness_16", "jump_4")
-
-
-def _artifacts(video) -> dict:
-    return {"blockiness_8": ev.blockiness(video, 8), "blockiness_16": ev.blockiness(video, 16),
-            "jump_4": ev.block_jump(video, ev.LATENT_FRAMES_PER_BLOCK)}
+METRICS = tuple(ev.METRICS)  # the registry (lightcrafter.evaluation.METRICS), in its order
 
 
 def _folder_video(folder: Path, n: int, exposure_ev: float) -> np.ndarray | None:
@@ -78,8 +70,7 @@ def main() -> int:
     refined = {e["pair_id"]: e for e in manifest["pairs"]}
     externals = sorted(p.name for p in Path(a.external_dir).iterdir() if p.is_dir()) if a.external_dir and \
         Path(a.external_dir).is_dir() else []
-    embedder = ev.load_clip_embedder(a.clip_weights)
-    lpips_model = ev.load_lpips(a.lpips_weights)
+    networks = {"lpips": ev.load_lpips(a.lpips_weights), "clip": ev.load_clip_embedder(a.clip_weights)}
     rows, methods, not_computed = [], ["proxy"], {}
     for i in range(len(ds)):
         item, rec = ds[i], ds.records[i]
@@ -98,7 +89,7 @@ def main() -> int:
             v = _folder_video(Path(a.external_dir) / name / item["pair_id"], n, a.exposure_ev)
             if v is not None:
                 videos[f"external:{name}"] = v
-        flows = ev.compute_flows(tgt) if n > 1 else None
+        ctx = ev.Context(tgt, ev.compute_flows(tgt) if n > 1 else None, **networks)
         row = {"pair_id": item["pair_id"], "scene_id": rec.get("scene_id"), "clip_id": rec.get("clip_id"),
                "target_light": rec.get("target_light"), "motion": rec.get("motion"),
                "ae_round_trip_psnr_db": e.get("ae_round_trip_psnr_db")}
@@ -108,24 +99,17 @@ def main() -> int:
             if v.shape != tgt.shape:
                 raise DataError(f"pair {item['pair_id']}: method {name} has {v.shape}, target {tgt.shape}; "
                                 "outputs must match the target's frames and size")
-            res = {"psnr_db": ev.framewise_psnr(v, tgt), "ssim": ev.framewise_ssim(v, tgt),
-                   "lpips": ev.lpips_video(v, tgt, model=lpips_model) if not isinstance(lpips_model, str)
-                   else ev.MetricResult("lpips", None, None, f"not computed: {lpips_model}"),
-                   "t_clip": ev.t_clip(v, embedder=embedder) if not isinstance(embedder, str)
-                   else ev.MetricResult("t_clip", None, None, f"not computed: {embedder}"),
-                   "warp_ssim": ev.warp_ssim(v, flows=flows) if flows is not None
-                   else ev.MetricResult("warp_ssim", None, None, "not computed: a one-frame clip has no motion"),
-                   **_artifacts(v)}
+            res = ev.evaluate_video(v, ctx)
             row[name] = {k: r.value for k, r in res.items()}
             for k, r in res.items():
                 if r.value is None:
                     not_computed[k] = r.status.removeprefix("not computed: ")
             if name not in methods:
                 methods.append(name)
-        row["target"] = {k: r.value for k, r in _artifacts(tgt).items()}
+        row["target"] = {k: r.value for k, r in ev.evaluate_target(ctx).items()}
         rows.append(row)
     mean, ci, vs_proxy = {}, {}, {}
-    tv = {k: [r["target"][k] for r in rows if r["target"].get(k) is not None] for k in ARTIFACT_METRICS}
+    tv = {k: [r["target"][k] for r in rows if r["target"].get(k) is not None] for k in rows[0]["target"]} if rows else {}
     mean["target"] = {k: (float(np.mean(v)) if v else None) for k, v in tv.items()}
     for m in methods:
         vals = {k: [r[m][k] for r in rows if m in r and r[m].get(k) is not None] for k in METRICS}

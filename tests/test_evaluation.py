@@ -354,9 +354,9 @@ def test_lpips_of_constant_and_one_pixel_frames_is_finite(tmp_path):
     _standin_lpips_weights(tmp_path)
     for shape in ((2, 1, 1, 3), (2, 63, 63, 3)):  # below AlexNet's 11 px receptive start, and ordinary
         zero, one = np.zeros(shape), np.ones(shape)
-        if shape[1] < 16:
-            with pytest.raises(ValueError, match="LPIPS needs frames of at least"):
-                ev.lpips_video(zero, one, tmp_path)
+        if shape[1] < 16:  # no answer: not computed, with the reason
+            r = ev.lpips_video(zero, one, tmp_path)
+            assert r.value is None and "smaller than the 31 px" in r.status
             continue
         r = ev.lpips_video(zero, one, tmp_path)
         assert np.isfinite(r.per_item).all() and r.value > 0
@@ -450,3 +450,26 @@ def test_blockiness_and_block_jump_find_the_grid_and_the_jumps_and_nothing_else(
     assert not ev.blockiness(const).computed and "constant" in ev.blockiness(const).status
     assert not ev.block_jump(const).computed and not ev.block_jump(smooth[:5]).computed
     assert not ev.blockiness(smooth[:, :10, :10]).computed
+
+
+def test_the_metric_registry_is_the_one_list(monkeypatch):
+    """evaluate_video computes every registered metric, evaluate_target the no-reference ones, and the
+    report's labels come from the same entries: a new metric is one entry."""
+    from lightcrafter import report
+
+    rng = np.random.default_rng(0)
+    tgt = np.clip(rng.random((6, 48, 64, 3)), 0, 1)
+    ctx = ev.Context(tgt, ev.compute_flows(tgt))
+    res = ev.evaluate_video(np.clip(tgt + 0.05, 0, 1), ctx)
+    assert list(res) == list(ev.METRICS)
+    assert res["lpips"].value is None and res["t_clip"].value is None      # no weights: not computed
+    assert res["psnr_db"].value == pytest.approx(-10 * np.log10(np.mean((np.clip(tgt + 0.05, 0, 1) - tgt) ** 2)),
+                                                 rel=1e-3)
+    assert set(ev.evaluate_target(ctx)) == {n for n, m in ev.METRICS.items() if not m.needs_reference}
+    assert set(report.METRIC_LABELS) == set(ev.METRICS)
+    monkeypatch.setitem(ev.METRICS, "mean_level", ev.Metric("mean_level", "mean", None, False,
+                                                             lambda v, c: ev.MetricResult("mean_level", float(v.mean()))))
+    assert ev.evaluate_video(tgt, ctx)["mean_level"].value == pytest.approx(tgt.mean())
+    assert "mean_level" in ev.evaluate_target(ctx)
+    with pytest.raises(ValueError, match="differ in shape"):
+        ev.evaluate_video(tgt[:3], ctx)
