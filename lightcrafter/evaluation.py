@@ -30,7 +30,7 @@ Temporal metrics, one value per transition t -> t+1, then the mean over transiti
 
 * **Warp-SSIM** (higher is better; structural consistency after optical-flow warping). Optical flow
   is computed on a REFERENCE video (the target for synthetic pairs, the original input video for
-  real clips without a target; :func:`warp_ssim_self` uses the method's own video) with OpenCV's DIS
+  real clips without a target) with OpenCV's DIS
   optical flow, preset MEDIUM (:data:`FLOW_PRESET`; 8-bit luma, BT.601 weights), forward
   f: t -> t+1 and backward b: t+1 -> t. A pixel x of frame t is kept when x + f(x) lies inside the
   image and passes the forward-backward consistency check of Sundaram et al. 2010,
@@ -72,10 +72,7 @@ needs-reference, function of the video and a :class:`Context`); ``scripts/evalua
 every entry for every method (:func:`evaluate_video`) and the no-reference ones on the target too
 (:func:`evaluate_target`), and the report takes its labels and directions from it.
 
-Per clip: the mean over frames (or transitions). The paper averages "across frames, illuminations,
-and scenes": :func:`paper_average` takes the mean over clips of one (scene, lighting), then over
-the lightings of a scene, then over scenes, so unequal clip counts do not reweight scenes;
-:func:`group_table` gives the per-lighting / per-scene tables. Uncertainty: :func:`bootstrap_ci`
+Per clip: the mean over frames (or transitions); per method, the mean over clips. Uncertainty: :func:`bootstrap_ci`
 (percentile bootstrap of the mean over clips) and :func:`paired_bootstrap_ci` (of the mean of
 per-clip differences between two methods on the same clips), :data:`BOOTSTRAP_RESAMPLES` = 10 000
 resamples, seed 0, 95 %, from :data:`MIN_CLIPS_FOR_INTERVAL` clips on ("too few clips for an interval"
@@ -95,11 +92,13 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 PSNR_CAP_DB = 100.0
+#: skimage's SSIM needs frames at least this many pixels on each side (its 7-px default window)
+SSIM_MIN_SIDE_PX = 7
 
 #: scikit-image SSIM settings (Wang et al. 2004): Gaussian 11-tap window, sigma 1.5, population covariance.
 SSIM_SETTINGS = dict(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, K1=0.01, K2=0.03, data_range=1.0)
@@ -229,8 +228,12 @@ def framewise_psnr(method, target) -> MetricResult:
 
 
 def framewise_ssim(method, target) -> MetricResult:
-    """Per-frame SSIM (:data:`SSIM_SETTINGS`) and their mean."""
+    """Per-frame SSIM (:data:`SSIM_SETTINGS`) and their mean; not computed for frames smaller than the
+    window (:data:`SSIM_MIN_SIDE_PX`)."""
     m, t = _pair(method, target)
+    if min(m.shape[1:3]) < SSIM_MIN_SIDE_PX:
+        return MetricResult.not_computed("ssim", f"frames {m.shape[2]}x{m.shape[1]} are smaller than SSIM's "
+                                         f"{SSIM_MIN_SIDE_PX}-px window")
     vals = tuple(ssim(x, y) for x, y in zip(m, t))
     return MetricResult("ssim", _finite_mean(vals), vals,
                         info={"library": "skimage.metrics.structural_similarity", **SSIM_SETTINGS,
@@ -312,6 +315,20 @@ def block_jump(video, block: int = LATENT_FRAMES_PER_BLOCK) -> MetricResult:
 
 
 # ----------------------------------------------------------------------------- optical flow
+#: OpenCV's DIS needs a frame side of at least this many pixels
+DIS_MIN_SIDE_PX = 12
+
+
+def no_flow_reason(video) -> str | None:
+    """Why a display video has no flow (None when it has one)."""
+    v = np.asarray(video)
+    if len(v) < 2:
+        return "a one-frame clip has no motion"
+    if max(v.shape[1:3]) < DIS_MIN_SIDE_PX:
+        return f"frames {v.shape[2]}x{v.shape[1]} are smaller than the {DIS_MIN_SIDE_PX} px OpenCV's DIS flow needs"
+    return None
+
+
 def _luma_u8(frame: np.ndarray) -> np.ndarray:
     import cv2
 
@@ -394,8 +411,12 @@ class VideoFlows:
 
 def compute_flows(video, preset: str = FLOW_PRESET, alpha: float = OCCLUSION_ALPHA,
                   beta: float = OCCLUSION_BETA) -> VideoFlows:
-    """DIS forward/backward flow between adjacent frames of a display video and occlusion masks."""
+    """DIS forward/backward flow between adjacent frames of a display video and occlusion masks; a
+    ValueError (one line) for frames OpenCV's DIS cannot take (:func:`no_flow_reason`)."""
     v = _as_display_video(video, "flow reference video")
+    why = no_flow_reason(v)
+    if why:
+        raise ValueError(f"optical flow: {why}")
     dis = _dis(preset)
     luma = [_luma_u8(f) for f in v]
     fwd, valid = [], []
@@ -449,16 +470,6 @@ def warp_ssim(method, reference=None, flows: VideoFlows | None = None, mask_occl
     if value is None:
         return MetricResult.not_computed("warp_ssim", "no unoccluded pixel in any transition", **info)
     return MetricResult("warp_ssim", value, tuple(curve), info=info)
-
-
-def warp_ssim_self(method, mask_occlusions: bool = True) -> MetricResult:
-    """Warp-SSIM with flow computed on the method's own video (for clips with no reference).
-
-    Weaker than :func:`warp_ssim` with a reference: a blurry or frozen output has an easy flow of
-    its own. Use it only where no target or input video exists.
-    """
-    return warp_ssim(method, reference=method, mask_occlusions=mask_occlusions, flow_source="self")
-
 
 
 # ----------------------------------------------------------------------------- T-CLIP
@@ -626,10 +637,13 @@ class Context:
     clip: object = "CLIP not loaded"
 
     @staticmethod
-    def of(target, lpips_weights=None, clip_weights=None) -> "Context":
+    def of(target, lpips=None, clip=None) -> "Context":
+        """The context of ``target``: its flows where it has them; ``lpips`` / ``clip`` the loaded networks
+        (or their reasons, :func:`load_lpips` / :func:`load_clip_embedder`)."""
         t = _as_display_video(target, "target video")
-        return Context(t, compute_flows(t) if len(t) > 1 else None, load_lpips(lpips_weights),
-                       load_clip_embedder(clip_weights))
+        return Context(t, None if no_flow_reason(t) else compute_flows(t),
+                       lpips if lpips is not None else load_lpips(None),
+                       clip if clip is not None else load_clip_embedder(None))
 
 
 @dataclass(frozen=True)
@@ -657,7 +671,7 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
     Metric("t_clip", "T-CLIP", True, False, lambda v, c: _needs(c.clip, "t_clip") if isinstance(c.clip, str)
            else t_clip(v, embedder=c.clip)),
     Metric("warp_ssim", "Warp-SSIM", True, True, lambda v, c: warp_ssim(v, flows=c.flows) if c.flows is not None
-           else _needs("a one-frame clip has no motion", "warp_ssim")),
+           else _needs(no_flow_reason(c.target), "warp_ssim")),
     Metric("blockiness_8", "blockiness 8 px", None, False, lambda v, c: blockiness(v, 8)),
     Metric("blockiness_16", "blockiness 16 px", None, False, lambda v, c: blockiness(v, 16)),
     Metric("jump_4", "4-frame jump", None, False, lambda v, c: block_jump(v, LATENT_FRAMES_PER_BLOCK)),
@@ -678,59 +692,6 @@ def evaluate_target(ctx: Context) -> dict[str, MetricResult]:
 
 
 # ----------------------------------------------------------------------------- aggregation
-def clip_mean(per_item: Iterable[float]) -> float:
-    """Per-frame (or per-transition) values -> the clip's mean; non-finite values raise."""
-    v = np.asarray(list(per_item), np.float64)
-    if v.size == 0 or not np.isfinite(v).all():
-        raise ValueError(f"clip_mean: need finite values, got {v.size} values with "
-                         f"{int((~np.isfinite(v)).sum())} non-finite")
-    return float(v.mean())
-
-
-def _values(records: Sequence[Mapping], metric: str) -> list:
-    return [r.get(metric) for r in records]
-
-
-def group_table(records: Sequence[Mapping], metrics: Sequence[str], by: Sequence[str] = ("lighting",)) -> list[dict]:
-    """Mean per group of clip records ({by keys..., metric: per-clip value}), sorted by the keys.
-
-    A cell is None when any clip of the group lacks the metric (not computed): a partial mean is
-    never reported under the metric's name. Each row has ``n_clips``.
-    """
-    groups: dict[tuple, list] = {}
-    for r in records:
-        groups.setdefault(tuple(r[k] for k in by), []).append(r)
-    rows = []
-    for key in sorted(groups, key=lambda k: tuple(str(x) for x in k)):
-        rs = groups[key]
-        row = dict(zip(by, key))
-        row["n_clips"] = len(rs)
-        for name in metrics:
-            vals = _values(rs, name)
-            row[name] = None if any(v is None for v in vals) else float(np.mean(vals))
-        rows.append(row)
-    return rows
-
-
-def paper_average(records: Sequence[Mapping], metric: str, levels: Sequence[str] = ("scene", "lighting")) -> float | None:
-    """Mean over frames (already in each record), then over clips of each innermost group, then
-    level by level outwards: by default clips -> lighting -> scene -> overall. None when any
-    record lacks the metric."""
-    vals = _values(records, metric)
-    if not records or any(v is None for v in vals):
-        return None
-
-    def rec(rs, depth):
-        if depth == len(levels):
-            return float(np.mean([r[metric] for r in rs]))
-        groups: dict = {}
-        for r in rs:
-            groups.setdefault(r[levels[depth]], []).append(r)
-        return float(np.mean([rec(g, depth + 1) for g in groups.values()]))
-
-    return rec(list(records), 0)
-
-
 def bootstrap_ci(values: Sequence[float], n_resamples: int = BOOTSTRAP_RESAMPLES,
                  confidence: float = BOOTSTRAP_CONFIDENCE, seed: int = BOOTSTRAP_SEED) -> dict:
     """Percentile bootstrap CI of the mean of per-clip values (clips resampled with replacement): the one

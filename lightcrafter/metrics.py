@@ -11,8 +11,8 @@ means of per-frame scores.
   sigma = 1.5 px, 11 taps, K1 = 0.01, K2 = 0.03, population covariance), per channel then averaged,
   the 5-px border excluded from the mean.
 * ``temporal_difference``: mean absolute difference between consecutive frames, per transition.
-* LPIPS / T-CLIP need network weights: :func:`perceptual_metrics` computes them only from local
-  weights folders, else reports why it skipped.
+* LPIPS / T-CLIP need network weights from local folders (lightcrafter.evaluation's registry reports
+  them "not computed: <reason>" otherwise).
 """
 
 from __future__ import annotations
@@ -20,27 +20,10 @@ from __future__ import annotations
 from .evaluation import (  # noqa: F401  (re-exported names)
     PSNR_CAP_DB,
     display_psnr_db,
-    lpips_video,
     psnr_db,
     ssim,
-    t_clip,
     temporal_difference,
     video_psnr_db,
     video_ssim,
 )
 
-
-def perceptual_metrics(a, b, lpips_weights: str | None = None,
-                       clip_weights: str | None = None) -> tuple[dict, list[str]]:
-    """LPIPS(a, b) and T-CLIP(a) from local weights; returns (scores, skip messages).
-
-    ``a`` is the method's display video, ``b`` the target's. A metric that cannot be computed gets
-    no entry in ``scores`` and a line "<name>: skipped, not computed: <reason>" in the messages.
-    """
-    scores, skipped = {}, []
-    for res in (lpips_video(a, b, lpips_weights), t_clip(a, clip_weights)):
-        if res.computed:
-            scores[res.name] = res.value
-        else:
-            skipped.append(f"{res.name}: skipped, {res.status}")
-    return scores, skipped

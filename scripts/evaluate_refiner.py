@@ -89,7 +89,7 @@ def main() -> int:
             v = _folder_video(Path(a.external_dir) / name / item["pair_id"], n, a.exposure_ev)
             if v is not None:
                 videos[f"external:{name}"] = v
-        ctx = ev.Context(tgt, ev.compute_flows(tgt) if n > 1 else None, **networks)
+        ctx = ev.Context.of(tgt, **networks)
         row = {"pair_id": item["pair_id"], "scene_id": rec.get("scene_id"), "clip_id": rec.get("clip_id"),
                "target_light": rec.get("target_light"), "motion": rec.get("motion"),
                "ae_round_trip_psnr_db": e.get("ae_round_trip_psnr_db")}

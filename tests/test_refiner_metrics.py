@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lightcrafter.metrics import perceptual_metrics, psnr_db, ssim, temporal_difference, video_psnr_db
+from lightcrafter.metrics import psnr_db, ssim, temporal_difference, video_psnr_db
 
 
 def test_psnr_known_value():
@@ -24,8 +24,3 @@ def test_ssim_identity_and_monotone():
 def test_temporal_difference():
     v = np.stack([np.full((2, 2, 3), x) for x in (0.0, 0.1, 0.4)])
     assert np.allclose(temporal_difference(v), [0.1, 0.3])
-
-
-def test_perceptual_metrics_skip_without_weights():
-    scores, skipped = perceptual_metrics(np.zeros((1, 4, 4, 3)), np.zeros((1, 4, 4, 3)))
-    assert scores == {} and all("skipped" in s for s in skipped)
