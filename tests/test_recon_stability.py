@@ -193,8 +193,9 @@ def test_ground_plane_is_recovered_from_noisy_points_with_outliers_and_degenerat
 
 
 def test_sky_beyond_the_ground_is_cut_and_an_object_on_the_ground_is_kept():
-    """A camera 1.5 m above the ground plane z = 0 looks at the horizon: the estimator's "surface" above the
-    horizon at 80 m (the sky as a far wall) is cut; a 1 m box 6 m away, rising above the horizon, stays."""
+    """A camera 1.5 m above the ground plane z = 0 looks at the horizon over a ground that ends 30 m away: the
+    estimator's "surface" at 80 m beyond it (the sky as a far wall) is cut; a 1 m box 6 m away, rising above
+    the horizon, stays, and so does the ground."""
     import math
 
     from lightcrafter.camera import intrinsics, opencv_c2w
@@ -214,10 +215,10 @@ def test_sky_beyond_the_ground_is_cut_and_an_object_on_the_ground_is_kept():
     surface = np.ones((h, w), bool)
     mask, cut = cut_sky_beyond_ground(depth[None], normal[None], surface[None], (n, o), K[None], c2w[None], 0.05,
                                       25.0, 1.5)
-    sky = ~np.isfinite(zp) & ~box
-    assert cut == int(sky.sum()) > 0
+    sky = ~ground & ~box
+    assert cut == int(sky.sum()) > int((~np.isfinite(zp)).sum())  # the sky and the wall below the horizon
     assert not mask[0][sky].any() and mask[0][box].all() and mask[0][ground & ~box].all()
-    # far ground below the horizon is never cut, and a frame without ground pixels is left alone
+    # a frame without ground pixels is left alone
     none, cut0 = cut_sky_beyond_ground(np.full((1, h, w), 80.0), normal[None], surface[None], (n, o), K[None],
                                        c2w[None], 0.05, 25.0, 1.5)
     assert cut0 == 0 and none.all()

@@ -295,7 +295,7 @@ class Recon(Section):
     ground_plane_max_tilt_deg: PositiveFloat = Field(25.0, lt=90, description="largest angle between a pixel's "
                                                      "normal (and the plane's) and the up direction")
     sky_beyond_ground: NonNegativeFloat = Field(0.0, description="default backend, with ground_plane: surface "
-                                                "pixels above the plane's horizon farther than this multiple of the "
+                                                "pixels off the plane farther than this multiple of the "
                                                 "frame's farthest ground pixel become background (the estimator's "
                                                 "sky as a far wall shadows the whole ground; counted in the clip "
                                                 "manifest's phi.sky_pixels_cut); 0 = off, else >= 1")

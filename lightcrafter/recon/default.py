@@ -17,8 +17,8 @@ transform, lightcrafter.io.linear_to_display, as a camera would record them):
    these scenes) is rotated onto +Z (the smallest rotation), for cameras and normals alike;
 6. optionally (``ground_plane``), the dominant supporting plane: a RANSAC plane through every frame's
    unprojected upward-facing surface points; pixels on it take its depth and normal, and its normal becomes
-   the world's +Z (:func:`snap_to_ground_plane`); with ``sky_beyond_ground`` > 0, surface pixels above the
-   plane's horizon farther than that multiple of the frame's farthest ground pixel are background
+   the world's +Z (:func:`snap_to_ground_plane`); with ``sky_beyond_ground`` > 0, surface pixels off the plane
+   farther than that multiple of the frame's farthest ground pixel are background
    (:func:`cut_sky_beyond_ground`: an estimator that calls the sky a surface makes a far wall that shadows
    the whole ground);
 7. holes of the mask (``max_hole_fraction``) are filled from the nearest surface pixel;
@@ -51,8 +51,8 @@ class DefaultSettings:
     surface or smaller than this fraction of the frame are holes, filled from the nearest surface pixel
     (:func:`hole_pixels`; 0 = off); ground_plane: snap the dominant supporting plane
     (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
-    ``ground_plane_max_tilt_deg``); sky_beyond_ground: with the plane, surface pixels above its horizon
-    farther than this multiple of the frame's farthest ground pixel become background
+    ``ground_plane_max_tilt_deg``); sky_beyond_ground: with the plane, surface pixels off it farther
+    than this multiple of the frame's farthest ground pixel become background
     (:func:`cut_sky_beyond_ground`; 0 = off); sfm: SfMSettings fields; exposure_ev: display
     exposure applied before estimation."""
 
@@ -313,12 +313,13 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
 def cut_sky_beyond_ground(depth: np.ndarray, n_world: np.ndarray, surface: np.ndarray, plane: tuple[np.ndarray, float],
                           K: np.ndarray, c2w: np.ndarray, tol_rel: float, max_tilt_deg: float,
                           ratio: float) -> tuple[np.ndarray, int]:
-    """Surface mask (N, H, W) without the pixels that cannot be scene: above the ground plane's horizon
-    (their rays never meet the plane n . x = o) and farther than ``ratio`` x the frame's farthest ground pixel
+    """Surface mask (N, H, W) without the pixels that cannot be scene: off the ground plane n . x = o and
+    farther than ``ratio`` x the frame's farthest ground pixel
     (the 99th percentile of the depths of ground pixels: within ``tol_rel`` of the plane and facing up within
     ``max_tilt_deg``, so a far wall where it meets the plane does not count). Objects standing on the
     ground are nearer than the ground behind them, so they stay; the sky and the far environment go.
-    Frames without ground pixels are left alone. Returns (mask, pixels cut)."""
+    Whether a ray meets the plane is not asked: a plane tilted by a degree or two moves the horizon out of a
+    downward-looking frame. Frames without ground pixels are left alone. Returns (mask, pixels cut)."""
     n, o = plane
     nf, h, w = depth.shape
     out, cut = surface.copy(), 0
@@ -329,7 +330,7 @@ def cut_sky_beyond_ground(depth: np.ndarray, n_world: np.ndarray, surface: np.nd
         if not ground.any():
             continue
         far = float(np.percentile(depth[i][ground], 99))
-        sky = surface[i] & ~np.isfinite(zp) & (depth[i] > ratio * far)
+        sky = surface[i] & ~ground & (depth[i] > ratio * far)
         out[i] &= ~sky
         cut += int(sky.sum())
     return out, cut
