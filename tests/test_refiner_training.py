@@ -2,6 +2,7 @@
 
 import json
 
+import pytest
 import torch
 
 from lightcrafter.refiner import load_model, resolve_config, train
@@ -54,6 +55,22 @@ def test_trained_model_reloads_with_infer_overrides(tmp_path):
     train(cfg, ToyDataset(1), tmp_path, progress=False)
     m = load_model(tmp_path / "model.pt", {"infer": {"num_steps": 3}})
     assert m.cfg["infer"]["num_steps"] == 3 and m.cfg["infer"]["window"] == cfg["infer"]["window"]
+
+
+def test_a_checkpoint_of_another_architecture_or_a_broken_file_is_a_one_line_error(tmp_path):
+    from lightcrafter.io import DataError
+
+    cfg = resolve_config({**CFG, "train": {**CFG["train"], "max_steps": 1}})
+    train(cfg, ToyDataset(1), tmp_path, progress=False)
+    with pytest.raises(DataError, match=r"model.pt: weights of another architecture .*retrain it") as exc:
+        load_model(tmp_path / "model.pt", {"model": {"ae_coeffs": [16, 8, 8]}})
+    assert "\n" not in str(exc.value)
+    (tmp_path / "broken.pt").write_bytes((tmp_path / "model.pt").read_bytes()[:200])
+    with pytest.raises(DataError, match=r"broken.pt: not a refiner checkpoint"):
+        load_model(tmp_path / "broken.pt")
+    torch.save({"transformer": {}}, tmp_path / "other.pt")
+    with pytest.raises(DataError, match=r"other.pt: not a refiner checkpoint \(no config"):
+        load_model(tmp_path / "other.pt")
 
 
 def test_target_latent_cache_is_exact():

@@ -402,7 +402,15 @@ def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = 
     """
     from .config import _merge, resolve_config
 
-    st = torch.load(path, map_location="cpu", weights_only=False)
+    from lightcrafter.io import DataError
+
+    fix = "retrain it with train_refiner, or point at a model.pt of this preset"
+    try:
+        st = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # truncated file, not a torch file, ...
+        raise DataError(f"{path}: not a refiner checkpoint ({type(exc).__name__}); {fix}") from None
+    if not isinstance(st, dict) or not {"config", "transformer", "ae"} <= set(st):
+        raise DataError(f"{path}: not a refiner checkpoint (no config, transformer and ae entries); {fix}")
     cfg = st["config"]
     if cfg_overrides:
         cfg = resolve_config(_merge(cfg, cfg_overrides))
@@ -410,7 +418,12 @@ def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = 
     if apply_selection and chosen:
         cfg = resolve_config(_merge(cfg, {"infer": {k: chosen[k] for k in SELECTED_INFER_KEYS if k in chosen}}))
     model = Refiner(cfg)
-    model.load_weights(st)
-    model.ae.load_state_dict(st["ae"])
+    try:
+        model.load_weights(st)
+        model.ae.load_state_dict(st["ae"])
+    except (RuntimeError, KeyError) as exc:  # another architecture: missing / unexpected keys, other shapes
+        first = str(exc).strip().splitlines()[0][:160]
+        raise DataError(f"{path}: weights of another architecture than the configured refiner ({first}); "
+                        f"{fix}") from None
     model.selection = st.get("selection")
     return (model.to_configured_device() if device is None else model.to(device)).eval()
