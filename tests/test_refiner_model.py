@@ -70,3 +70,38 @@ def test_rotary_embedding_path_runs():
     assert m(z, z, torch.tensor([3])).shape == z.shape
     assert grid_crop_region((2, 3), 6, 4) == ((0, 0), (4, 6))
     assert grid_crop_region((2, 2), 6, 4) == ((0, 1), (4, 5))
+
+
+@pytest.mark.parametrize("kind", ["zeros", "ones", "flash"])
+@pytest.mark.parametrize("guidance", [0.0, 20.0])
+def test_refined_video_of_extreme_proxies_is_finite_and_in_range(kind, guidance):
+    """All-black, all-white and one-frame-flash proxies, CFG off and at 20, fused windows overlapping by one
+    latent frame: the refined video is finite, in [-1, 1], and keeps the proxy's frames."""
+    from lightcrafter.refiner import refine_video
+
+    torch.manual_seed(0)
+    cfg = resolve_config({"model": {"ae_coeffs": [8, 4, 4], "proxy_anchor": "none"},
+                          "infer": {"num_steps": 3, "window": 2, "overlap": 1}})
+    model = Refiner(cfg).eval()
+    proxy = torch.full((1, 3, 9, 16, 16), -1.0 if kind == "zeros" else 1.0)
+    if kind == "flash":
+        proxy = torch.full_like(proxy, -1.0)
+        proxy[:, :, 4] = 1.0
+    with torch.no_grad():
+        out = refine_video(model, proxy, cfg, generator=torch.Generator().manual_seed(0), guidance_scale=guidance)
+    assert out.shape == proxy.shape and torch.isfinite(out).all() and out.abs().max() <= 1.0
+
+
+@pytest.mark.parametrize("dtype", ["float32", "bfloat16"])
+@pytest.mark.parametrize("training", [False, True])
+def test_network_is_finite_at_the_first_and_last_timesteps_in_both_precisions(dtype, training):
+    """model.dtype bf16: parameters in bf16 for inference, fp32 masters under autocast for training."""
+    torch.manual_seed(0)
+    m = Refiner(resolve_config({"model": {"ae_coeffs": [8, 4, 4], "proxy_anchor": "none", "dtype": dtype}}),
+                training=training)
+    c = m.latent_channels
+    z = torch.randn(1, 3, c, 4, 6) * 50  # far outside the unit-variance latents
+    for t in (0, 999):
+        with torch.no_grad():
+            out = m(z, torch.zeros_like(z), torch.tensor([t]))
+        assert out.dtype == torch.float32 and torch.isfinite(out).all()
