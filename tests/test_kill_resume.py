@@ -79,6 +79,9 @@ DETERMINISTIC = ["scenes/*/scene.json", "assets/manifest.json", "gt/*/*/buffers.
 # that difference: they are compared within these bounds.
 NEAR = ["recon/*/*/buffers.json", "aligned/*/*/buffers.json"]
 NEAR_ATOL, NEAR_RTOL = 1e-3, 1e-3  # numbers of Phi's manifests (observed: at most 4e-5 absolute)
+# Pixel and point counts (sky pixels cut, SfM points) move by whole pixels where a threshold meets the last
+# bits of a depth (observed: 7783 vs 7768 sky pixels cut on s0000_t0, 0.2 %); a count within 1 % is the same.
+COUNT_RTOL = 1e-2
 
 
 def _assert_json_near(a, b, where: str) -> None:
@@ -92,6 +95,8 @@ def _assert_json_near(a, b, where: str) -> None:
         assert isinstance(b, list) and len(a) == len(b), f"{where}: lengths differ"
         for i, (x, y) in enumerate(zip(a, b)):
             _assert_json_near(x, y, f"{where}[{i}]")
+    elif isinstance(a, int) and isinstance(b, int) and not isinstance(a, bool):
+        assert abs(a - b) <= max(NEAR_ATOL, COUNT_RTOL * abs(a)), f"{where}: count {a} vs {b}"
     elif isinstance(a, (int, float)) and not isinstance(a, bool):
         assert abs(a - b) <= NEAR_ATOL + NEAR_RTOL * abs(a), f"{where}: {a} vs {b}"
     else:
