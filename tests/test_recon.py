@@ -147,6 +147,43 @@ def test_depth_scales_follow_sfm_points_and_fill_gaps():
     np.testing.assert_allclose(s, [3.0, 3.0, 3.0, 3.0, 3.0])  # gap filled, the 3.3 outlier removed by the median
 
 
+
+def test_planar_depth_fit_turns_a_tilted_ground_to_the_sfm_points_tilt():
+    """The estimator predicts a ground whose inverse depth is compressed (x 0.6), shifted and rolled (a slope
+    across the image); the SfM points (15 % of them outliers) lie on the true ground. ``planar`` recovers the
+    true depth and the ground's normal; ``scale`` and ``affine`` keep the roll."""
+    from lightcrafter.proxy.geometry import camera_rays
+    from lightcrafter.recon.cameras import CameraTrack
+    from lightcrafter.recon.default import apply_depth_fit, depth_fits
+
+    n, h, w = 3, 32, 48
+    K = syn.intrinsics(w, h, 0.9)
+    truth = syn.raycast_buffers(K, syn.look_at([0, -3, 2.1], [0, 0, 0]), w, h, [], syn.Ground()).depth
+    assert np.isfinite(truth).all()
+    wrong = 1.0 / (0.6 / truth + 0.02 + 0.12 * camera_rays(K, h, w)[..., 0])
+    rng = np.random.default_rng(0)
+    pick = rng.choice(h * w, 120, replace=False)
+    uv = np.stack([pick % w, pick // w], 1).astype(float)
+    z = truth.reshape(-1)[pick] * np.where(rng.random(120) < 0.15, rng.uniform(0.5, 2.0, 120), 1.0)
+    c2w = np.repeat(np.eye(4)[None], n, 0)
+    pts = np.concatenate([np.c_[(uv - K[:2, 2]) / np.diag(K)[:2] * z[:, None], z]] * n)
+    obs = [(uv, np.arange(i * 120, (i + 1) * 120)) for i in range(n)]
+    tr = CameraTrack(K=np.repeat(K[None], n, 0), c2w=c2w, registered=np.ones(n, bool), points=pts,
+                     observations=obs, static=False)
+    pred = np.repeat(wrong[None], n, 0)
+    err = {}
+    for mode in ("scale", "affine", "planar"):
+        fit = depth_fits(tr, pred, min_points=8, mode=mode)
+        d = apply_depth_fit(wrong, fit[1], K)
+        roll = np.arcsin(np.clip(np.abs(normals_from_depth(d, K)[4:-4, 4:-4, 0]), 0, 1))  # the true normal has no x
+        err[mode] = (float(np.median(np.abs(d / truth - 1))), float(np.degrees(np.median(roll))))
+    assert err["planar"][0] < 0.01 and err["planar"][1] < 0.5, err  # printed on failure: (depth rel. error, roll deg)
+    assert err["scale"][1] > 4 and err["affine"][1] > 4, err  # the roll stays without the plane terms
+    with pytest.raises(ValueError, match="intrinsics"):
+        apply_depth_fit(wrong, np.array([1.0, 0.0, 0.1, 0.0]))
+    with pytest.raises(ValueError, match="planar"):
+        depth_fits(tr, pred, min_points=8, mode="plane")
+
 def test_estimator_forward_shapes_and_units():
     import torch
 

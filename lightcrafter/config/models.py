@@ -281,8 +281,10 @@ class Recon(Section):
                                        "= scenes.fov_x_deg); real clips take theirs from real.videos")
     normals: Literal["predicted", "depth"] = Field("predicted", description="the estimator's normals or normals "
                                                    "from its depth (default backend)")
-    depth_fit: Literal["scale", "affine"] = Field("scale", description="per-frame fit of the estimator's depth to "
-                                                  "the SfM points (default backend)")
+    depth_fit: Literal["scale", "affine", "planar"] = Field(
+        "scale", description="per-frame fit of the estimator's inverse depth to the SfM points (default backend): "
+        "scale (a median ratio), affine (+ a shift), planar (+ a shift and a plane in image coordinates: turns a "
+        "ground the estimator tilted to the SfM points' tilt); lightcrafter.recon.default.depth_fits")
     max_hole_fraction: NonNegativeFloat = Field(0.0, le=1.0, description="default backend: non-surface regions "
                                                 "enclosed by surface, or smaller than this fraction of the frame, are "
                                                 "holes of the estimator's mask, filled from the nearest surface pixel "
@@ -294,6 +296,10 @@ class Recon(Section):
                                                 "its depth")
     ground_plane_max_tilt_deg: PositiveFloat = Field(25.0, lt=90, description="largest angle between a pixel's "
                                                      "normal (and the plane's) and the up direction")
+    ground_plane_normal: Literal["depth", "predicted", "auto"] = Field(
+        "depth", description="default backend, with ground_plane: the plane's orientation from the depth (RANSAC), "
+        "from the estimator's normals of its pixels (predicted), or predicted for a static camera and depth for a "
+        "moving one (auto: a static camera has no SfM points to tilt the depth with)")
     sky_beyond_ground: NonNegativeFloat = Field(0.0, description="default backend, with ground_plane: surface "
                                                 "pixels off the plane farther than this multiple of the "
                                                 "frame's farthest ground pixel become background (the estimator's "

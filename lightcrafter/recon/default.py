@@ -8,8 +8,9 @@ transform, lightcrafter.io.linear_to_display, as a camera would record them):
 2. per-frame buffers from the estimator (:mod:`.estimator`): depth in the training scenes' metres,
    camera-space normals, albedo, roughness, metallic, mask;
 3. depth made consistent with the cameras: per frame, the estimator's inverse depth is fitted to the
-   SfM points seen in that frame, 1/d = a/d_pred + b (``depth_fit: affine``, robust least squares) or
-   1/d = a/d_pred (``scale``, the median ratio); frames with fewer than ``min_points`` take their
+   SfM points seen in that frame, 1/d = a/d_pred + b + p x + q y (``depth_fit: planar``, robust least
+   squares; (x, y) normalised camera coordinates), 1/d = a/d_pred + b (``affine``) or 1/d = a/d_pred
+   (``scale``, the median ratio); frames with fewer than ``min_points`` take their
    nearest neighbour's fit, smoothed by a 3-frame median; a static camera keeps the estimator's metres;
 4. world normals: the estimator's (rotated by c2w), or derived from the depth map (config
    ``normals: depth``: cross product of the unprojected points' image-space differences);
@@ -45,13 +46,14 @@ from lightcrafter.recon.cameras import CameraTrack, ReconstructionError, SfMSett
 class DefaultSettings:
     """fov_x_deg: intrinsics prior (horizontal field of view, degrees); camera: auto (static detection,
     else SfM) | static (known fixed camera: no SfM); normals: predicted | depth; depth_fit: scale |
-    affine (per-frame fit of the estimator's depth to the SfM points, see :func:`depth_fits`);
+    affine | planar (per-frame fit of the estimator's depth to the SfM points, see :func:`depth_fits`);
     min_points: SfM points a frame needs for its own depth scale; mask_threshold: estimator mask
     probability above which a pixel is a surface; max_hole_fraction: non-surface components enclosed by
     surface or smaller than this fraction of the frame are holes, filled from the nearest surface pixel
     (:func:`hole_pixels`; 0 = off); ground_plane: snap the dominant supporting plane
     (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
-    ``ground_plane_max_tilt_deg``); sky_beyond_ground: with the plane, surface pixels off it farther
+    ``ground_plane_max_tilt_deg``; ground_plane_normal: depth | predicted | auto, the plane's orientation from
+    the depth or the predicted normals of its pixels, auto = predicted for a static camera); sky_beyond_ground: with the plane, surface pixels off it farther
     than this multiple of the frame's farthest ground pixel become background
     (:func:`cut_sky_beyond_ground`; 0 = off); sfm: SfMSettings fields; exposure_ev: display
     exposure applied before estimation."""
@@ -66,6 +68,7 @@ class DefaultSettings:
     ground_plane: bool = False
     ground_plane_tol_rel: float = 0.05
     ground_plane_max_tilt_deg: float = 25.0
+    ground_plane_normal: str = "depth"
     sky_beyond_ground: float = 0.0
     exposure_ev: float = 0.0
     sfm: dict = field(default_factory=dict)
@@ -79,10 +82,12 @@ class DefaultSettings:
         s = cls(**d)
         if s.camera not in ("auto", "static"):
             raise ValueError(f"recon camera={s.camera!r}: use 'auto' or 'static'")
-        if s.depth_fit not in ("scale", "affine"):
-            raise ValueError(f"recon.depth_fit={s.depth_fit!r}: use 'scale' or 'affine'")
+        if s.depth_fit not in DEPTH_FIT_MODES:
+            raise ValueError(f"recon.depth_fit={s.depth_fit!r}: use one of {list(DEPTH_FIT_MODES)}")
         if s.sky_beyond_ground and s.sky_beyond_ground < 1.0:
             raise ValueError(f"recon.sky_beyond_ground={s.sky_beyond_ground!r}: use 0 (off) or a ratio >= 1")
+        if s.ground_plane_normal not in ("depth", "predicted", "auto"):
+            raise ValueError(f"recon.ground_plane_normal={s.ground_plane_normal!r}: use 'depth', 'predicted' or 'auto'")
         if s.normals not in ("predicted", "depth"):
             raise ValueError(f"recon.normals={s.normals!r}: use 'predicted' or 'depth'")
         from lightcrafter.config import validate_section
@@ -107,15 +112,35 @@ def read_video_frames(frames_dir: str | Path, exposure_ev: float = 0.0) -> tuple
     return d, io.to_uint8(d)
 
 
+DEPTH_FIT_MODES = ("scale", "affine", "planar")
+
+
 def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode: str = "scale") -> np.ndarray:
-    """Per-frame (a, b) taking predicted depth d to the cameras' units: ``scale``: 1/d' = a/d (b = 0, a the
-    median ratio); ``affine``: 1/d' = a/d + b in inverse depth (disparity), a robust least-squares fit to
-    the SfM points (a monocular estimator's depth range is compressed; the shift restores the slope of
-    the ground). Frames with too few points take their nearest neighbour's fit; 3-frame median in time."""
+    """Per-frame fits (N, 4) = (a, b, p, q) taking predicted z-depth d to the cameras' units by
+    1/d' = a/d + b + p x + q y, with (x, y) = ((u - c_x)/f_x, (v - c_y)/f_y) the pixel's normalised camera
+    coordinates (OpenCV axes, z = 1):
+
+    * ``scale``: b = p = q = 0, a the median ratio of the SfM points' inverse depths to the prediction's;
+    * ``affine``: p = q = 0, (a, b) a robust least-squares fit in inverse depth (disparity): a monocular
+      estimator's depth range is compressed, the shift restores the slope of the ground along the view;
+    * ``planar``: (a, b, p, q) by the same robust fit. The inverse depth of a plane is affine in (x, y)
+      (n . z(x, y, 1) = o gives 1/z = (n_x x + n_y y + n_z) / o), so the added terms are exactly a plane's:
+      they turn a ground the estimator tilted (wrong shading under a low sun, self-shadowing) to the tilt
+      the multi-view SfM points give it, in any direction, where ``affine`` can only steepen or flatten the
+      predicted slope.
+
+    Robust fit: three rounds of least squares keeping the 80 % smallest residuals; a fit that makes some
+    observed point's inverse depth non-positive falls back to ``scale``; ``affine`` needs 2 x ``min_points``
+    points and ``planar`` 4 x. Frames with fewer than ``min_points`` points take their nearest neighbour's
+    fit; then a 3-frame median in time, per coefficient. A static camera keeps the prediction: (1, 0, 0, 0).
+    """
+    if mode not in DEPTH_FIT_MODES:
+        raise ValueError(f"recon.depth_fit={mode!r}: use one of {list(DEPTH_FIT_MODES)}")
     n, h, w = depth_pred.shape
     if track.static:
-        return np.tile([1.0, 0.0], (n, 1))
-    fits = np.full((n, 2), np.nan)
+        return np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    fits = np.full((n, 4), np.nan)
+    need = {"scale": 1, "affine": 2, "planar": 4}[mode] * min_points
     for i in range(n):
         uv, z = point_depths(track, i)
         if len(z) < min_points:
@@ -127,18 +152,20 @@ def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode
         if ok.sum() < min_points:
             continue
         x, y = 1.0 / dp[ok], 1.0 / z[ok]
-        a = float(np.median(y / x))
-        b = 0.0
-        if mode == "affine" and ok.sum() >= 2 * min_points and np.ptp(x) > 0:
+        K = np.asarray(track.K[i], np.float64)
+        xn, yn = (uv[ok, 0] - K[0, 2]) / K[0, 0], (uv[ok, 1] - K[1, 2]) / K[1, 1]
+        fit = np.array([np.median(y / x), 0.0, 0.0, 0.0])
+        if mode != "scale" and ok.sum() >= need and np.ptp(x) > 0:
+            cols = [x, np.ones_like(x)] + ([xn, yn] if mode == "planar" else [])
+            A_all = np.stack(cols, 1)
             keep = np.ones(len(x), bool)
             for _ in range(3):  # least squares with residual trimming (robust to mismatched points)
-                A = np.stack([x[keep], np.ones(keep.sum())], 1)
-                a_, b_ = np.linalg.lstsq(A, y[keep], rcond=None)[0]
-                r = np.abs(a_ * x + b_ - y)
+                coef = np.linalg.lstsq(A_all[keep], y[keep], rcond=None)[0]
+                r = np.abs(A_all @ coef - y)
                 keep = r <= max(np.percentile(r, 80), 1e-12)
-            if a_ > 0 and np.all(a_ * x.min() + b_ > 0):
-                a, b = float(a_), float(b_)
-        fits[i] = (a, b)
+            if coef[0] > 0 and np.all(A_all @ coef > 0):
+                fit[: len(coef)] = coef
+        fits[i] = fit
     have = np.flatnonzero(np.isfinite(fits[:, 0]))
     if not len(have):
         raise ReconstructionError("no frame sees enough SfM points to scale its depth")
@@ -150,9 +177,18 @@ def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode
     return fits
 
 
-def apply_depth_fit(depth: np.ndarray, fit: np.ndarray) -> np.ndarray:
-    """d' = 1 / (a / d + b); pixels whose inverse depth would not be positive become invalid (inf)."""
+def apply_depth_fit(depth: np.ndarray, fit: np.ndarray, K: np.ndarray | None = None) -> np.ndarray:
+    """d' = 1 / (a / d + b + p x + q y) for a fit (a, b[, p, q]) of :func:`depth_fits` (the plane terms need
+    the intrinsics K); pixels whose inverse depth would not be positive become invalid (inf)."""
+    fit = np.asarray(fit, np.float64)
     inv = fit[0] / depth + fit[1]
+    if len(fit) > 2 and (fit[2] or fit[3]):
+        if K is None:
+            raise ValueError("a planar depth fit needs the frame's intrinsics K")
+        from lightcrafter.proxy.geometry import camera_rays
+
+        rays = camera_rays(K, *depth.shape)
+        inv = inv + fit[2] * rays[..., 0] + fit[3] * rays[..., 1]
     return np.where(inv > 0, 1.0 / np.maximum(inv, 1e-12), np.inf)
 
 
@@ -266,19 +302,24 @@ def plane_depth(n: np.ndarray, o: float, K: np.ndarray, c2w: np.ndarray, h: int,
 
 def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.ndarray, K: np.ndarray,
                          c2w: np.ndarray, tol_rel: float, max_tilt_deg: float, min_support: float = 0.25,
-                         max_points: int = 20000):
+                         max_points: int = 20000, normal_from: str = "depth"):
     """The dominant supporting plane of a Z-up clip, from the depth maps of every frame (metres of the
     clip's units): pixels whose points lie within ``tol_rel`` of the plane (relative to their depth) and whose
     normals are within ``max_tilt_deg`` of the plane's take the plane's depth and normal exactly (a
     multi-view estimate of the ground replaces the per-frame monocular one: no tilt, no depth noise to cast
     self-shadows). The plane is used only when its pixels are at least ``min_support`` of the clip's
-    surface pixels (info ``support_fraction``, ``used``). Returns (depth, n_world, plane (n, o) or None, info)
-    with the plane n . x = o in the given world."""
+    surface pixels (info ``support_fraction``, ``used``). ``normal_from``: ``depth`` snaps to the RANSAC plane
+    itself; ``predicted`` keeps its inliers (which pixels are ground) but turns the plane to the mean of their
+    per-pixel normals ``n_world`` (through their median offset): where the depth's tilt is the estimator's
+    guess alone (a static camera: no SfM points to fit it to), its normals may tilt the ground better.
+    Returns (depth, n_world, plane (n, o) or None, info) with the plane n . x = o in the given world."""
     from lightcrafter.proxy.geometry import unproject
 
     nf, h, w = depth.shape
     rng = np.random.default_rng(0)
     cos_max = np.cos(np.radians(max_tilt_deg))
+    if normal_from not in ("depth", "predicted"):
+        raise ValueError(f"recon.ground_plane_normal={normal_from!r}: use 'depth' or 'predicted'")
     pts, dists = [], []
     for i in range(nf):
         ok = surface[i] & np.isfinite(depth[i]) & (n_world[i][..., 2] > cos_max)
@@ -298,9 +339,19 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
         on = surface[i] & np.isfinite(zp) & (np.abs(depth[i] - zp) < tol_rel * zp) & \
             ((n_world[i] @ n) > np.cos(np.radians(max_tilt_deg)))
         ons.append((on, zp))
+    tilt_change = 0.0
+    if normal_from == "predicted" and any(on.any() for on, _ in ons):
+        m = sum(n_world[i][on].sum(0) for i, (on, _) in enumerate(ons))
+        n_pred = m / max(np.linalg.norm(m), 1e-12)
+        inl = np.concatenate([unproject(np.where(on, depth[i], np.inf), K[i], c2w[i])[on] for i, (on, _) in enumerate(ons)])
+        tilt_change = float(np.degrees(np.arccos(np.clip(n_pred @ n, -1.0, 1.0))))
+        n, o = n_pred, float(np.median(inl @ n_pred))
+        ons = [(on, plane_depth(n, o, K[i], c2w[i], h, w)) for i, (on, _) in enumerate(ons)]
+        ons = [(on & np.isfinite(zp), zp) for on, zp in ons]
     support = sum(int(on.sum()) for on, _ in ons) / max(int(surface.sum()), 1)
     info = {"ground_plane": {"normal": np.round(n, 6).tolist(), "offset": round(o, 6), "inlier_fraction": round(frac, 4),
-                             "support_fraction": round(support, 4), "used": support >= min_support}}
+                             "support_fraction": round(support, 4), "used": support >= min_support,
+                             "normal_from": normal_from, "turned_deg": round(tilt_change, 3)}}
     if support < min_support:  # no plane carries the scene (e.g. a face filling the frame): leave it alone
         return depth, n_world, None, info
     depth, n_world = depth.copy(), n_world.copy()
@@ -354,6 +405,7 @@ def config_settings(cfg: dict) -> dict:
         "ground_plane": r["ground_plane"],
         "ground_plane_tol_rel": r["ground_plane_tol_rel"],
         "ground_plane_max_tilt_deg": r["ground_plane_max_tilt_deg"],
+        "ground_plane_normal": r["ground_plane_normal"],
         "sky_beyond_ground": r["sky_beyond_ground"],
         "sfm": r["sfm"],
     }
@@ -399,8 +451,7 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     except ReconstructionError as exc:
         raise ReconstructionError(f"{name}: {exc}") from None
     mask = pred["mask"] > settings.mask_threshold
-    depth = np.stack([apply_depth_fit(pred["depth"][i], fits[i]) for i in range(n)])
-    scale = fits[:, 0]
+    depth = np.stack([apply_depth_fit(pred["depth"][i], fits[i], track.K[i]) for i in range(n)])
     if settings.normals == "depth":
         n_cam = np.stack([normals_from_depth(depth[i], track.K[i]) for i in range(n)])
     else:
@@ -415,8 +466,12 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     n_world = n_world @ Q.T
     plane_info = {}
     if settings.ground_plane:
+        normal_from = settings.ground_plane_normal
+        if normal_from == "auto":  # SfM points tilt the depth of a moving camera; a static one has only the estimator
+            normal_from = "predicted" if track.static else "depth"
         depth, n_world, plane, plane_info = snap_to_ground_plane(
-            depth, n_world, mask, track.K, c2w, settings.ground_plane_tol_rel, settings.ground_plane_max_tilt_deg)
+            depth, n_world, mask, track.K, c2w, settings.ground_plane_tol_rel, settings.ground_plane_max_tilt_deg,
+            normal_from=normal_from)
         if plane is not None and settings.sky_beyond_ground:
             mask, plane_info["sky_pixels_cut"] = cut_sky_beyond_ground(
                 depth, n_world, mask, plane, track.K, c2w, settings.ground_plane_tol_rel,
