@@ -147,7 +147,6 @@ def test_depth_scales_follow_sfm_points_and_fill_gaps():
     np.testing.assert_allclose(s, [3.0, 3.0, 3.0, 3.0, 3.0])  # gap filled, the 3.3 outlier removed by the median
 
 
-
 def test_planar_depth_fit_turns_a_tilted_ground_to_the_sfm_points_tilt():
     """The estimator predicts a ground whose inverse depth is compressed (x 0.6), shifted and rolled (a slope
     across the image); the SfM points (15 % of them outliers) lie on the true ground. ``planar`` recovers the
@@ -183,6 +182,7 @@ def test_planar_depth_fit_turns_a_tilted_ground_to_the_sfm_points_tilt():
         apply_depth_fit(wrong, np.array([1.0, 0.0, 0.1, 0.0]))
     with pytest.raises(ValueError, match="planar"):
         depth_fits(tr, pred, min_points=8, mode="plane")
+
 
 def test_estimator_forward_shapes_and_units():
     import torch

@@ -53,8 +53,8 @@ class DefaultSettings:
     (:func:`hole_pixels`; 0 = off); ground_plane: snap the dominant supporting plane
     (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
     ``ground_plane_max_tilt_deg``; ground_plane_normal: depth | predicted | auto, the plane's orientation from
-    the depth or the predicted normals of its pixels, auto = predicted for a static camera); sky_beyond_ground: with the plane, surface pixels off it farther
-    than this multiple of the frame's farthest ground pixel become background
+    the depth or the predicted normals of its pixels, auto = predicted for a static camera);
+    sky_beyond_ground: with the plane, surface pixels off it farther than this multiple of the frame's farthest ground pixel become background
     (:func:`cut_sky_beyond_ground`; 0 = off); sfm: SfMSettings fields; exposure_ev: display
     exposure applied before estimation."""
 
@@ -152,11 +152,12 @@ def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode
         if ok.sum() < min_points:
             continue
         x, y = 1.0 / dp[ok], 1.0 / z[ok]
-        K = np.asarray(track.K[i], np.float64)
-        xn, yn = (uv[ok, 0] - K[0, 2]) / K[0, 0], (uv[ok, 1] - K[1, 2]) / K[1, 1]
         fit = np.array([np.median(y / x), 0.0, 0.0, 0.0])
         if mode != "scale" and ok.sum() >= need and np.ptp(x) > 0:
-            cols = [x, np.ones_like(x)] + ([xn, yn] if mode == "planar" else [])
+            cols = [x, np.ones_like(x)]
+            if mode == "planar":  # the points' normalised camera coordinates
+                K = np.asarray(track.K[i], np.float64)
+                cols += [(uv[ok, 0] - K[0, 2]) / K[0, 0], (uv[ok, 1] - K[1, 2]) / K[1, 1]]
             A_all = np.stack(cols, 1)
             keep = np.ones(len(x), bool)
             for _ in range(3):  # least squares with residual trimming (robust to mismatched points)
@@ -343,7 +344,8 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     if normal_from == "predicted" and any(on.any() for on, _ in ons):
         m = sum(n_world[i][on].sum(0) for i, (on, _) in enumerate(ons))
         n_pred = m / max(np.linalg.norm(m), 1e-12)
-        inl = np.concatenate([unproject(np.where(on, depth[i], np.inf), K[i], c2w[i])[on] for i, (on, _) in enumerate(ons)])
+        inl = np.concatenate([unproject(np.where(on, depth[i], np.inf), K[i], c2w[i])[on]
+                              for i, (on, _) in enumerate(ons)])
         tilt_change = float(np.degrees(np.arccos(np.clip(n_pred @ n, -1.0, 1.0))))
         n, o = n_pred, float(np.median(inl @ n_pred))
         ons = [(on, plane_depth(n, o, K[i], c2w[i], h, w)) for i, (on, _) in enumerate(ons)]
