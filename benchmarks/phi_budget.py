@@ -123,8 +123,8 @@ def main() -> int:
     ap.add_argument("--max-pairs", type=int, default=None)
     ap.add_argument("--rows", default=None, help="comma-separated rows to render (default: all), e.g. oracle,phi")
     ap.add_argument("--phi-settings", default=None, help="JSON of recon settings (DefaultSettings fields) over the "
-                    "run's: Phi is re-run on each clip's source video with them and aligned (default: the run's "
-                    "aligned clips)")
+                    "run's: Phi is re-run on each clip's source video with them and aligned, clips the run left out included "
+                    "(default: the run's aligned clips)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--strips", type=Path, default=None, help="folder for a PNG strip per pair: input | oracle "
                     "proxy | Phi proxy | target (default: beside --out, phi_budget_strips/)")
@@ -158,13 +158,13 @@ def main() -> int:
         for spec, t, light in pairs:
             sid, tid = spec["scene_id"], t["id"]
             aligned = Path(L.aligned_clip_manifest(sid, tid))
-            if not aligned.is_file() or io.read_json(aligned).get("skipped"):
+            if a.phi_settings is None and (not aligned.is_file() or io.read_json(aligned).get("skipped")):
                 print(f"{sid}_{tid}: Phi left it out; not in the budget", flush=True)
                 continue
             gt_views, info = read_clip(L.gt_clip(sid, tid))
             if a.phi_settings is not None:
                 aligned_dir = _rerun_phi(L, cfg, sid, tid, t, json.loads(a.phi_settings), Path(tmp) / "phi")
-                if aligned_dir is None:
+                if aligned_dir is None:  # left out by Phi with these settings (printed); not in the budget
                     continue
                 phi_views, _ = read_clip(aligned_dir)
             else:

@@ -249,3 +249,42 @@ def test_static_ground_truth_camera_takes_its_scale_from_depth_not_from_the_esti
     d_est = [np.full((4, 6), 1.5, np.float32)] * n      # scale 2 in the depth maps
     sim = align.estimate(est, gt, d_est, d_gt)
     assert abs(sim.scale - 2.0) < 1e-9 and abs(sim.depth_scale - 1.0) < 1e-9
+
+
+def test_sfm_retries_its_overrides_in_order_and_records_the_attempt_that_succeeded(monkeypatch):
+    """recon.sfm.retry: a clip the configured settings reject is run again with each override in turn; the
+    track says which attempt registered it; when every attempt fails the error names the clip and the count;
+    an override with an unknown key is a one-line config error."""
+    from lightcrafter.config import ConfigError
+    from lightcrafter.config.models import SfM
+    from lightcrafter.recon import cameras
+
+    seen = []
+
+    def fake_colmap(frames, K, s, name, tmp):
+        seen.append((s.upscale, s.init_min_tri_angle_deg))
+        if s.init_min_tri_angle_deg > 5:
+            raise cameras.ReconstructionError(f"{name}: structure from motion found no model")
+        return cameras.CameraTrack(
+            K=np.repeat(K[None], len(frames), 0), c2w=np.repeat(np.eye(4)[None], len(frames), 0),
+            registered=np.ones(len(frames), bool), points=np.zeros((0, 3)),
+            observations=[(np.zeros((0, 2)), np.zeros(0, np.int64))] * len(frames), static=False,
+            info={"method": "colmap"})
+
+    monkeypatch.setattr(cameras, "_colmap", fake_colmap)
+    monkeypatch.setattr(cameras, "median_motion_px", lambda frames: 5.0)  # a moving camera
+    frames = np.zeros((4, 16, 24, 3), np.uint8)
+    s = SfM(upscale=2, init_min_tri_angle_deg=8.0,
+            retry=[{"init_min_tri_angle_deg": 6.0}, {"init_min_tri_angle_deg": 4.0, "abs_pose_min_num_inliers": 15}])
+    track = cameras.estimate_cameras(frames, 0.9, s, name="clipA")
+    assert seen == [(2, 8.0), (2, 6.0), (2, 4.0)]  # in order, each keeping the keys it does not override
+    assert track.info["sfm_attempt"] == 2 and len(track.info["sfm_failed_attempts"]) == 2
+    seen.clear()
+    track = cameras.estimate_cameras(frames, 0.9, SfM(init_min_tri_angle_deg=4.0, retry=[{"upscale": 2}]), name="b")
+    assert seen == [(1, 4.0)] and track.info["sfm_attempt"] == 0 and "sfm_failed_attempts" not in track.info
+    with pytest.raises(cameras.ReconstructionError, match=r"clipC: .*no model \(after 2 attempts"):
+        cameras.estimate_cameras(frames, 0.9, SfM(retry=[{"upscale": 3}]), name="clipC")
+    with pytest.raises(ConfigError, match=r"recon\.sfm.*retry\[0\] has unknown key\(s\) \['upscal'\]"):
+        from lightcrafter.config import validate_section
+
+        validate_section(SfM, {"retry": [{"upscal": 2}]}, "recon.sfm")

@@ -194,6 +194,25 @@ class SfM(Section):
     init_min_tri_angle_deg: PositiveFloat = Field(16.0, description="COLMAP's smallest triangulation angle of the "
                                                   "initial image pair (degrees); short orbits need less than its 16")
     abs_pose_min_num_inliers: PositiveInt = Field(30, description="COLMAP's fewest 2D-3D inliers to register a frame")
+    retry: list[dict[str, Union[int, float]]] = Field(
+        [], description="when SfM rejects a clip (no model, or under min_registered_fraction), it is run again with "
+        "each of these overrides of the keys above in turn (e.g. a smaller init_min_tri_angle_deg); the manifest "
+        "records which attempt succeeded (`sfm_attempt`, 0 = the settings above)")
+
+    @field_validator("retry")
+    @classmethod
+    def _retry_keys(cls, v):
+        known = set(cls.model_fields) - {"retry"}
+        for i, over in enumerate(v):
+            bad = sorted(set(over) - known)
+            if bad:
+                raise ValueError(f"retry[{i}] has unknown key(s) {bad}; use keys of recon.sfm: {sorted(known)}")
+        return v
+
+    def attempts(self) -> list["SfM"]:
+        """The settings SfM tries in order: these, then each ``retry`` override (validated)."""
+        base = self.model_dump(exclude={"retry"})
+        return [self] + [SfM(**{**base, **over}) for over in self.retry]
 
 
 class Estimator(Section):

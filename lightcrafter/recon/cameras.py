@@ -111,7 +111,8 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
     """Cameras of display frames (N, H, W, 3) uint8: static detection, else incremental SfM.
 
     Raises :class:`ReconstructionError` (one line naming ``name``) when SfM registers fewer than
-    ``min_registered_fraction`` of the frames. Unregistered frames of an accepted model get the pose
+    ``min_registered_fraction`` of the frames with the settings and with each of their ``retry`` overrides
+    (tried in order; ``info["sfm_attempt"]`` is the one that succeeded, 0 = ``settings`` themselves). Unregistered frames of an accepted model get the pose
     of their nearest registered neighbour (flagged in ``registered``).
     """
     frames = np.asarray(frames)
@@ -128,16 +129,26 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
         return track
     if n < 3:
         raise ReconstructionError(f"{name}: {n} frames with camera motion; structure from motion needs at least 3")
-    tmp = Path(tempfile.mkdtemp(prefix="lc_sfm_", dir=work_dir))
-    try:
-        track = _colmap(frames, K, settings, name, tmp)
-    except ReconstructionError:
+    track, failures = None, []
+    for attempt, s in enumerate(settings.attempts()):
+        tmp = Path(tempfile.mkdtemp(prefix="lc_sfm_", dir=work_dir))
+        try:
+            track = _colmap(frames, K, s, name, tmp)
+            track.info["sfm_attempt"] = attempt
+            break
+        except ReconstructionError as exc:
+            failures.append(str(exc))
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    if track is None:
         if motion > 2 * settings.static_motion_px:
-            raise
+            tried = f" (after {len(failures)} attempts: recon.sfm and its {len(failures) - 1} retry overrides)" \
+                if len(failures) > 1 else ""
+            raise ReconstructionError(failures[-1] + tried)
         track = static_track(n, K)
         track.info = {"method": "static (fallback)", "registered": n, "frames": n}
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    if failures:
+        track.info["sfm_failed_attempts"] = failures
     track.info.update({"median_motion_px": motion, "seconds": round(time.perf_counter() - t0, 3)})
     return track
 
