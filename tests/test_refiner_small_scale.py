@@ -322,3 +322,47 @@ def test_selection_rerun_with_a_new_candidate_step_skips_it(tmp_path):
         return [(r["step"], r["strength"], r["guidance_scale"], r["psnr_db"], r["ssim"]) for r in table]
 
     assert scores(again["selection"]["table"]) == scores(first["selection"]["table"])  # same weights, same scores
+
+
+def test_pixel_anchor_starts_at_identity_has_no_block_grid_trains_and_round_trips(tmp_path):
+    """model.anchor_space: pixel: the anchor acts on the decoded proxy's pixels. It is the identity at
+    initialisation; a learned map of it treats every pixel alike (a shifted proxy gives the shifted output),
+    where the per-latent-channel map of the DCT autoencoder (anchor_space: latent) changes an 8-pixel shift's
+    output; it trains and is saved and loaded; the paper model cannot take it."""
+    from lightcrafter.refiner import load_model, train
+    from lightcrafter.refiner.model import LatentAffine, PixelAnchor
+    from lightcrafter.refiner.toy import ToyDataset, toy_pair
+
+    lossless = {"model": {"ae_coeffs": [256, 256, 256], "anchor_space": "pixel", "anchor_kernel_px": 1}}
+    cfg = resolve_config(lossless)
+    model = Refiner(cfg).eval()
+    assert isinstance(model.anchor_map, PixelAnchor)
+    proxy = toy_pair(1, num_frames=5, height=32, width=64)["proxy"][None]
+    z = model.ae.encode(proxy)
+    with torch.no_grad():
+        assert torch.allclose(model.anchor_map(z), z, atol=1e-4)
+        torch.manual_seed(0)
+        for p in model.anchor_map.parameters():
+            p.uniform_(-0.1, 0.1)
+        shifted = torch.roll(proxy, 4, dims=-1)  # half a DCT block
+
+        def out(m, video):
+            return m.ae.decode(m.anchor_map(m.ae.encode(video)))[..., 8:-8]  # away from the wrapped edge
+
+        assert torch.allclose(out(model, shifted)[..., 4:], torch.roll(out(model, proxy), 4, dims=-1)[..., 4:],
+                              atol=1e-4)
+        latent = Refiner(resolve_config({"model": {"ae_coeffs": [256, 256, 256]}})).eval()
+        assert isinstance(latent.anchor_map, LatentAffine)
+        latent.ae.load_state_dict(model.ae.state_dict())
+        latent.anchor_map.gain.uniform_(-0.3, 0.3)
+        assert not torch.allclose(out(latent, shifted)[..., 4:], torch.roll(out(latent, proxy), 4, dims=-1)[..., 4:],
+                                  atol=1e-2)
+    cfg = resolve_config({**SMALL, "model": {"ae_coeffs": [8, 4, 4], "anchor_space": "pixel", "anchor_kernel_px": 1},
+                          "train": {"max_steps": 3, "checkpoint_every": 100, "anchor_lr": 0.05}})
+    train(cfg, ToyDataset(2), tmp_path, progress=False)
+    m = load_model(tmp_path / "model.pt")
+    assert float(m.anchor_map.kernel.detach().abs().max()) > 0.01
+    st = torch.load(tmp_path / "model.pt", weights_only=False)
+    assert set(st["anchor_map"]) == {"colour", "bias", "kernel"}
+    with pytest.raises(ValueError, match="anchor_space=pixel .* kind=paper"):
+        resolve_config({"preset": "paper", "model": {"anchor_space": "pixel", "model_path": str(tmp_path)}})

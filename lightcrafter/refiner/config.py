@@ -91,10 +91,25 @@ class RefinerModelSettings(_Section):
         "v = v_anchor - F / sqrt(1 - abar_t) | v: v = v_anchor + F; v_anchor is the v whose x0 estimate is the "
         "proxy latent, F's output projection is zero-initialised, so an untrained model returns the proxy. "
         "The anchor uses the proxy in both CFG branches (guidance acts on F's proxy input)")
+    anchor_space: Literal["latent", "pixel"] = Field(
+        "latent", description="with anchor_affine: latent = a per-latent-channel gain and bias (for the tiny DCT "
+        "autoencoder a per-DCT-frequency filter, which varies across each 8x8-pixel and 4-frame block: it leaves a "
+        "block grid in the output) | pixel (tiny DCT autoencoder only) = the decoded proxy through a colour affine "
+        "map (3x3 + bias) and a (2r+1)^2 kernel per colour channel (r = anchor_kernel_px), both the identity at "
+        "initialisation, re-encoded: the same at every pixel, so no block grid")
+    anchor_kernel_px: NonNegativeInt = Field(0, le=8, description="radius r of the pixel anchor's kernel (0 = the "
+                                             "colour map alone)")
     anchor_affine: bool = Field(
         False, description="with a proxy anchor: the anchor is a learned per-latent-channel affine map of the proxy "
         "latent (gain and bias per channel, zero-initialised: still the identity at initialisation), trained with "
         "the network by the same loss; for the DCT autoencoder a per-frequency linear filter of the proxy")
+
+    @model_validator(mode="after")
+    def _pixel_anchor_needs_the_dct_autoencoder(self):
+        if self.anchor_space == "pixel" and self.kind != "tiny":
+            raise ValueError("anchor_space=pixel filters the decoded proxy at every step, which only the tiny DCT "
+                             "autoencoder makes cheap; use anchor_space: latent for kind=paper")
+        return self
 
 
 class RefinerTrainSettings(_Section):

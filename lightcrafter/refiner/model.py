@@ -23,7 +23,9 @@ is the v whose x0 estimate is exactly the proxy latent ``a``. The transformer's 
   |F - (x0 - a)|^2 / (1 - abar_t): the paper's loss and minimiser, reweighted towards small t.
 * ``v``: v = v_anchor + F (F's target (a - x0) / sqrt(1 - abar_t) grows as t -> 0).
 
-With ``model.anchor_affine`` the anchor is a learned per-latent-channel affine map of the proxy,
+With ``model.anchor_affine`` and ``model.anchor_space: pixel`` the anchor is instead a learned colour map and
+kernel on the decoded proxy's pixels (:class:`PixelAnchor`), which has no block grid. Without the kernel,
+the anchor is a learned per-latent-channel affine map of the proxy,
 ``a' = a * (1 + gain) + bias`` (:class:`LatentAffine`, zero-initialised, so still the identity at
 initialisation): a per-frequency linear filter of the proxy (for the DCT autoencoder, one gain per
 kept DCT coefficient and colour channel), shared by every position and timestep, that the
@@ -115,6 +117,44 @@ class LatentAffine(nn.Module):
         return x * (1 + self.gain.view(1, 1, -1, 1, 1)) + self.bias.view(1, 1, -1, 1, 1)
 
 
+class PixelAnchor(nn.Module):
+    """Anchor map on pixels for the DCT autoencoder (``model.anchor_space: pixel``, r = ``anchor_kernel_px``):
+    the proxy latent is decoded to display values in [-1, 1], mapped by a colour affine map (I + C) x + b
+    (RGB) and a (2r+1) x (2r+1) kernel per colour channel (identity + K, edges replicated; r = 0: the
+    colour map alone), then encoded again. Every parameter
+    starts at zero, so the map is the identity at initialisation (for latents of kept frequencies). Unlike
+    :class:`LatentAffine` on DCT coefficients it is the same at every pixel position: no 8-pixel block grid.
+    The autoencoder is held by reference (not a submodule: its buffers stay out of the anchor's weights)."""
+
+    def __init__(self, ae, radius: int):
+        super().__init__()
+        if not hasattr(ae, "decode_raw"):
+            raise ValueError("model.anchor_kernel_px needs the tiny DCT autoencoder (kind=tiny)")
+        self.radius = int(radius)
+        k = 2 * self.radius + 1
+        self.colour = nn.Parameter(torch.zeros(3, 3))
+        self.bias = nn.Parameter(torch.zeros(3))
+        self.kernel = nn.Parameter(torch.zeros(3, 1, k, k))
+        object.__setattr__(self, "_ae", ae)
+
+    def forward(self, a: torch.Tensor) -> torch.Tensor:
+        import torch.nn.functional as F
+
+        ae = self._ae
+        shift, scale = ae.shift.view(1, 1, -1, 1, 1), ae.scale.view(1, 1, -1, 1, 1)
+        x = ae.decode_raw(a * scale + shift)  # (B, 3, N, H, W)
+        x = torch.einsum("oc,bcnhw->bonhw", torch.eye(3, device=x.device) + self.colour, x) \
+            + self.bias.view(1, 3, 1, 1, 1)
+        b, c, n, h, w = x.shape
+        r = self.radius
+        ident = torch.zeros_like(self.kernel)
+        ident[:, :, r, r] = 1.0
+        y = x.permute(0, 2, 1, 3, 4).reshape(b * n, c, h, w)
+        y = F.conv2d(F.pad(y, (r, r, r, r), mode="replicate"), ident + self.kernel, groups=3)
+        x = y.reshape(b, n, c, h, w).permute(0, 2, 1, 3, 4)
+        return (ae.encode_raw(x) - shift) / scale
+
+
 def grid_crop_region(grid_hw: tuple[int, int], base_w: int, base_h: int):
     """Centred region of the base (sample) token grid that a (h, w) token grid is resized into,
     aspect preserved -- the crop CogVideoX 1.0 uses for its 3-D RoPE. Returns ((top, left), (bottom, right))."""
@@ -192,8 +232,11 @@ class Refiner(nn.Module):
 
         ab = build_scheduler(cfg, "ddim").alphas_cumprod.double()
         self.register_buffer("alphas_cumprod", ab.float(), persistent=False)
-        self.anchor_map = (LatentAffine(self.ae.latent_channels)
-                           if self.proxy_anchor != "none" and cfg["model"].get("anchor_affine") else None)
+        self.anchor_map = None
+        if self.proxy_anchor != "none" and cfg["model"].get("anchor_affine"):
+            m = cfg["model"]
+            self.anchor_map = (PixelAnchor(self.ae, int(m.get("anchor_kernel_px") or 0))
+                               if m.get("anchor_space") == "pixel" else LatentAffine(self.ae.latent_channels))
         if self.proxy_anchor != "none":
             out = self.transformer.proj_out  # CogVideoX's last layer (after the adaptive norm)
             with torch.no_grad():
