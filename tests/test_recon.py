@@ -288,3 +288,13 @@ def test_sfm_retries_its_overrides_in_order_and_records_the_attempt_that_succeed
         from lightcrafter.config import validate_section
 
         validate_section(SfM, {"retry": [{"upscal": 2}]}, "recon.sfm")
+
+
+def test_sfm_enlarges_small_frames_to_min_width_and_leaves_large_ones():
+    """recon.sfm.min_width_px: the smallest integer factor (at most 4) that brings the frames to that width;
+    frames already as wide are not enlarged (a user's 720-px video is not run at 1440 px)."""
+    from lightcrafter.config.models import SfM
+
+    s = SfM(min_width_px=320)
+    assert [s.upscale_for(w) for w in (192, 160, 320, 720, 50)] == [2, 2, 1, 1, 4]
+    assert SfM(upscale=3).upscale_for(720) == 3  # without min_width_px the fixed factor applies

@@ -191,6 +191,9 @@ class SfM(Section):
     upscale: PositiveInt = Field(1, le=4, description="frames are enlarged this many times (bicubic) before feature "
                                  "extraction: small frames give SIFT more keypoints; intrinsics and observations stay "
                                  "in the video's pixels")
+    min_width_px: Optional[PositiveInt] = Field(
+        None, description="instead of a fixed `upscale`: frames narrower than this many pixels are enlarged by the "
+        "smallest integer factor (at most 4) that reaches it, wider ones not at all (null = use `upscale`)")
     init_min_tri_angle_deg: PositiveFloat = Field(16.0, description="COLMAP's smallest triangulation angle of the "
                                                   "initial image pair (degrees); short orbits need less than its 16")
     abs_pose_min_num_inliers: PositiveInt = Field(30, description="COLMAP's fewest 2D-3D inliers to register a frame")
@@ -208,6 +211,12 @@ class SfM(Section):
             if bad:
                 raise ValueError(f"retry[{i}] has unknown key(s) {bad}; use keys of recon.sfm: {sorted(known)}")
         return v
+
+    def upscale_for(self, width_px: int) -> int:
+        """The enlargement factor for frames ``width_px`` wide (``min_width_px`` if set, else ``upscale``)."""
+        if self.min_width_px is None:
+            return int(self.upscale)
+        return int(min(4, max(1, -(-int(self.min_width_px) // int(width_px)))))
 
     def attempts(self) -> list["SfM"]:
         """The settings SfM tries in order: these, then each ``retry`` override (validated)."""

@@ -161,7 +161,7 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
     img_dir = tmp / "images"
     img_dir.mkdir()
     names = [f"{i:05d}.png" for i in range(n)]
-    up = int(s.upscale)
+    up = s.upscale_for(w)
     for f, nm in zip(frames, names):
         if up > 1:
             import cv2
@@ -240,7 +240,7 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
     return CameraTrack(K=np.repeat(K[None], n, 0), c2w=c2w, registered=registered, points=points,
                        observations=observations, static=False,
                        info={"method": "colmap", "registered": n_reg, "frames": n, "points": int(len(points)),
-                             "models": len(models), "matching": "exhaustive" if n <= s.exhaustive_max_frames
+                             "models": len(models), "upscale": up, "matching": "exhaustive" if n <= s.exhaustive_max_frames
                              else f"sequential({s.sequential_overlap})"})
 
 
