@@ -366,3 +366,45 @@ def test_pixel_anchor_starts_at_identity_has_no_block_grid_trains_and_round_trip
     assert set(st["anchor_map"]) == {"colour", "bias", "kernel"}
     with pytest.raises(ValueError, match="anchor_space=pixel .* kind=paper"):
         resolve_config({"preset": "paper", "model": {"anchor_space": "pixel", "model_path": str(tmp_path)}})
+
+
+def test_block_ratio_measures_an_added_grid_against_the_proxy():
+    from lightcrafter.refiner.fit import block_ratio
+    from lightcrafter.refiner.toy import toy_pair
+
+    proxy = toy_pair(2, num_frames=5, height=32, width=64)["proxy"]
+    grid = proxy.clone()
+    grid[..., 7::8] += 0.3  # a bright line every 8 px: an 8-px block edge
+    assert block_ratio(proxy, proxy) == pytest.approx(1.0)
+    assert block_ratio(grid.clamp(-1, 1), proxy) > 1.5
+    assert block_ratio(torch.zeros_like(proxy), torch.zeros_like(proxy)) == 1.0  # flat: no answer, counts as 1
+
+
+def test_selection_refuses_candidates_that_add_a_block_grid(tmp_path, monkeypatch):
+    """select.max_block_ratio: a candidate whose validation clips carry more block grid than allowed is not
+    chosen even with the best score; when every candidate does, the least blocky one is."""
+    from lightcrafter.refiner import fit as fitmod
+
+    real_refine_fn = fitmod.refine_fn
+
+    def tagged(model, cfg, strength, guidance_scale, num_steps=None, residual_scale=None):
+        fn = real_refine_fn(model, cfg, strength, guidance_scale, num_steps, residual_scale)
+
+        def run(item):
+            out = fn(item)
+            out.residual = residual_scale
+            return out
+        return run
+
+    monkeypatch.setattr(fitmod, "refine_fn", tagged)
+    monkeypatch.setattr(fitmod, "block_ratio", lambda out, proxy: 2.0 if out.residual else 1.05)
+    pairs = _toy_manifest(tmp_path, ["s0", "s1"])
+    base = {**SMALL, "train": {"max_steps": 2, "grad_accum": 1}, "infer": {"num_steps": 4},
+            "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0], "max_block_ratio": 1.1},
+            "baselines": {"regressor_steps": 0, "affine_colour": False}}
+    res = fitmod.fit_refiner(resolve_config(base), pairs, tmp_path / "m", progress=False)["selection"]
+    assert {(r["residual_scale"], r["admissible"]) for r in res["table"]} == {(1.0, False), (0.0, True)}
+    assert res["chosen"]["residual_scale"] == 0.0 and res["chosen"]["block_ratio"] == 1.05
+    strict = {**base, "select": {**base["select"], "max_block_ratio": 0.5}}
+    res = fitmod.fit_refiner(resolve_config(strict), pairs, tmp_path / "m2", progress=False)["selection"]
+    assert not any(r["admissible"] for r in res["table"]) and res["chosen"]["residual_scale"] == 0.0

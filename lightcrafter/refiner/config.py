@@ -202,6 +202,10 @@ class RefinerSelectSettings(_Section):
                                                     "infer.guidance_scale values")
     residual_scales: list[float] = Field([1.0], min_length=1, description="candidate infer.residual_scale values "
                                          "(0 = the learned anchor alone; only with a proxy anchor)")
+    max_block_ratio: Optional[PositiveFloat] = Field(
+        None, description="candidates whose validation clips have more block-grid texture than this times the "
+        "proxy's (lightcrafter.refiner.fit.block_ratio: 8- and 16-px blockiness, refined over proxy) are not chosen, "
+        "whatever their score (the refiner's goal: within 10 % of the target's); null = no limit")
     metric: Literal["psnr_db", "ssim"] = Field("psnr_db", description="psnr_db | ssim: the validation score (mean "
                                                "over clips) that picks checkpoint, strength, guidance")
 

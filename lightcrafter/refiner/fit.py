@@ -12,7 +12,9 @@
    ``select.metric`` wins (ties: the earlier step, then the smaller strength, then the smaller
    guidance, then the full model). Residual scale 0 is the learned anchor map of the proxy alone
    (trained jointly with the transformer): when the transformer's correction does not generalise to
-   unseen scenes, validation says so and the refiner falls back to its anchor. Without validation
+   unseen scenes, validation says so and the refiner falls back to its anchor. With
+   ``select.max_block_ratio`` a candidate whose clips carry more block-grid texture than that times the
+   proxy's (:func:`block_ratio`) is not chosen, whatever its score. Without validation
    scenes nothing is selected and ``infer.*`` is used as configured.
 4. **Baselines** (``baselines.*``): the one-step regressor (same network, trained on the fit pairs for
    ``baselines.regressor_steps``) and the affine colour fit, both scored on the same validation clips.
@@ -60,8 +62,10 @@ def _round_robin(records: list[dict], ids: list[str], limit: int) -> list[str]:
     return out[: max(int(limit), 0)]
 
 
-def score_method(fn, dataset) -> dict:
-    """Apply ``fn(item) -> (3, N, H, W)`` to every item; per-pair scores, means and seconds per clip."""
+def score_method(fn, dataset, block_grid: bool = False) -> dict:
+    """Apply ``fn(item) -> (3, N, H, W)`` to every item; per-pair scores, means and seconds per clip.
+    ``block_grid``: also ``block_ratio``, the mean over pairs of the output's block-grid texture over the
+    proxy's (:func:`block_ratio`)."""
     rows, secs = [], []
     for i in range(len(dataset)):
         item = dataset[i]
@@ -69,8 +73,30 @@ def score_method(fn, dataset) -> dict:
         out = fn(item)
         secs.append(time.perf_counter() - t0)
         rows.append({"pair_id": item["pair_id"], **clip_scores(out, item["target"])})
-    return {"pairs": rows, "psnr_db": float(np.mean([r["psnr_db"] for r in rows])),
-            "ssim": float(np.mean([r["ssim"] for r in rows])), "seconds_per_clip": float(np.mean(secs))}
+        if block_grid:
+            rows[-1]["block_ratio"] = block_ratio(out, item["proxy"])
+    res = {"pairs": rows, "psnr_db": float(np.mean([r["psnr_db"] for r in rows])),
+           "ssim": float(np.mean([r["ssim"] for r in rows])), "seconds_per_clip": float(np.mean(secs))}
+    if block_grid:
+        res["block_ratio"] = float(np.mean([r["block_ratio"] for r in rows]))
+    return res
+
+
+def block_ratio(video, proxy) -> float:
+    """Block-grid texture of a refined clip relative to its proxy's: the larger of the 8- and 16-pixel
+    :func:`lightcrafter.evaluation.blockiness` ratios (refined / proxy; 1 = no grid added). Clips too small or
+    too flat for the metric count as 1. Both clips (3, N, H, W) in [-1, 1]."""
+    from lightcrafter.evaluation import blockiness
+
+    from .data import to_display_frames
+
+    a, b = to_display_frames(video), to_display_frames(proxy)
+    ratios = []
+    for period in (8, 16):
+        ra, rb = blockiness(a, period).value, blockiness(b, period).value
+        if ra is not None and rb:
+            ratios.append(ra / rb)
+    return float(max(ratios)) if ratios else 1.0
 
 
 def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None,
@@ -137,24 +163,39 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     t0 = time.perf_counter()
     if selecting:
         table = []
+        max_block = sel.get("max_block_ratio")
         for step in steps:
             model = _candidate_model(cfg, out_dir, step, max_steps, final["ae"])
             for s, g, rs in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"]),
                                               sorted(sel["residual_scales"], reverse=True)):
                 if float(rs) == 0.0 and float(g) != min(sel["guidance_scales"]):
                     continue  # the anchor alone ignores guidance: score it once per step and strength
-                sc = score_method(refine_fn(model, cfg, float(s), float(g), residual_scale=float(rs)), val_ds)
-                table.append({"step": step, "strength": float(s), "guidance_scale": float(g),
-                              "residual_scale": float(rs), "psnr_db": sc["psnr_db"], "ssim": sc["ssim"],
-                              "seconds_per_clip": sc["seconds_per_clip"]})
-                log.info("validation step %d strength %.2f guidance %.1f residual %.1f: %.3f dB, SSIM %.4f", step,
-                         s, g, rs, sc["psnr_db"], sc["ssim"])
+                sc = score_method(refine_fn(model, cfg, float(s), float(g), residual_scale=float(rs)), val_ds,
+                                  block_grid=max_block is not None)
+                row = {"step": step, "strength": float(s), "guidance_scale": float(g),
+                       "residual_scale": float(rs), "psnr_db": sc["psnr_db"], "ssim": sc["ssim"],
+                       "seconds_per_clip": sc["seconds_per_clip"]}
+                if max_block is not None:
+                    row["block_ratio"] = sc["block_ratio"]
+                    row["admissible"] = sc["block_ratio"] <= max_block
+                table.append(row)
+                log.info("validation step %d strength %.2f guidance %.1f residual %.1f: %.3f dB, SSIM %.4f%s", step,
+                         s, g, rs, sc["psnr_db"], sc["ssim"], "" if max_block is None else
+                         f", block grid x{sc['block_ratio']:.2f} of the proxy's")
         metric = sel["metric"]
+        pool = [r for r in table if r.get("admissible", True)]
+        if not pool:  # every candidate adds a block grid: the least blocky one
+            log.info("every candidate exceeds select.max_block_ratio %.2f; the one with the least block grid is "
+                     "chosen", max_block)
+            least = min(r["block_ratio"] for r in table)
+            pool = [r for r in table if r["block_ratio"] == least]
         # ties go to the earlier step, the smaller strength and guidance, and the full model (residual 1)
-        best = max(table, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"],
-                                         r["residual_scale"]))
+        best = max(pool, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"],
+                                        r["residual_scale"]))
         chosen = {"step": best["step"], "strength": best["strength"], "guidance_scale": best["guidance_scale"],
                   "residual_scale": best["residual_scale"], "metric": metric, "value": best[metric]}
+        if max_block is not None:
+            chosen["block_ratio"] = best["block_ratio"]
         if best["step"] != max_steps:
             snap = torch.load(snapshot_path(out_dir, best["step"]), map_location="cpu", weights_only=False)
             chosen_sd = {k: snap[k] for k in weight_keys if k in snap}
