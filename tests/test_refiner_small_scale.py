@@ -365,7 +365,10 @@ def test_pixel_anchor_starts_at_identity_has_no_block_grid_trains_and_round_trip
     st = torch.load(tmp_path / "model.pt", weights_only=False)
     assert set(st["anchor_map"]) == {"colour", "bias", "kernel"}
     with pytest.raises(ValueError, match="anchor_space=pixel .* kind=paper"):
-        resolve_config({"preset": "paper", "model": {"anchor_space": "pixel", "model_path": str(tmp_path)}})
+        resolve_config({"preset": "paper", "model": {"anchor_space": "pixel", "proxy_anchor": "x0",
+                                                     "anchor_affine": True, "model_path": str(tmp_path)}})
+    # the paper preset has no anchor: a laptop config's pixel anchor carried into it changes nothing
+    assert not resolve_config({"preset": "paper", "model": {"anchor_space": "pixel"}})["model"]["anchor_affine"]
 
 
 def test_block_ratio_measures_an_added_grid_against_the_proxy():
