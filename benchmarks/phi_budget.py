@@ -123,8 +123,8 @@ def main() -> int:
     ap.add_argument("--max-pairs", type=int, default=None)
     ap.add_argument("--rows", default=None, help="comma-separated rows to render (default: all), e.g. oracle,phi")
     ap.add_argument("--phi-settings", default=None, help="JSON of recon settings (DefaultSettings fields) over the "
-                    "run's: Phi is re-run on each clip's source video with them and aligned, clips the run left out included "
-                    "(default: the run's aligned clips)")
+                    "run's: Phi is re-run on each clip's source video with them and aligned, clips the run left out "
+                    "included (default: the run's aligned clips)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--strips", type=Path, default=None, help="folder for a PNG strip per pair: input | oracle "
                     "proxy | Phi proxy | target (default: beside --out, phi_budget_strips/)")

@@ -112,8 +112,9 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
 
     Raises :class:`ReconstructionError` (one line naming ``name``) when SfM registers fewer than
     ``min_registered_fraction`` of the frames with the settings and with each of their ``retry`` overrides
-    (tried in order; ``info["sfm_attempt"]`` is the one that succeeded, 0 = ``settings`` themselves). Unregistered frames of an accepted model get the pose
-    of their nearest registered neighbour (flagged in ``registered``).
+    (tried in order; ``info["sfm_attempt"]`` is the one that succeeded, 0 = ``settings`` themselves).
+    Unregistered frames of an accepted model get the pose of their nearest registered neighbour (flagged in
+    ``registered``).
     """
     frames = np.asarray(frames)
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
@@ -240,7 +241,8 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
     return CameraTrack(K=np.repeat(K[None], n, 0), c2w=c2w, registered=registered, points=points,
                        observations=observations, static=False,
                        info={"method": "colmap", "registered": n_reg, "frames": n, "points": int(len(points)),
-                             "models": len(models), "upscale": up, "matching": "exhaustive" if n <= s.exhaustive_max_frames
+                             "models": len(models), "upscale": up,
+                             "matching": "exhaustive" if n <= s.exhaustive_max_frames
                              else f"sequential({s.sequential_overlap})"})
 
 

@@ -54,7 +54,8 @@ class DefaultSettings:
     (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
     ``ground_plane_max_tilt_deg``; ground_plane_normal: depth | predicted | auto, the plane's orientation from
     the depth or the predicted normals of its pixels, auto = predicted for a static camera);
-    sky_beyond_ground: with the plane, surface pixels off it farther than this multiple of the frame's farthest ground pixel become background
+    sky_beyond_ground: with the plane, surface pixels off it farther than this multiple of the frame's
+    farthest ground pixel become background
     (:func:`cut_sky_beyond_ground`; 0 = off); sfm: SfMSettings fields; exposure_ev: display
     exposure applied before estimation."""
 

@@ -106,7 +106,8 @@ class RefinerModelSettings(_Section):
 
     @model_validator(mode="after")
     def _pixel_anchor_needs_the_dct_autoencoder(self):
-        if self.anchor_space == "pixel" and self.anchor_affine and self.proxy_anchor != "none" and self.kind != "tiny":
+        anchored = self.anchor_affine and self.proxy_anchor != "none"
+        if self.anchor_space == "pixel" and anchored and self.kind != "tiny":
             raise ValueError("anchor_space=pixel filters the decoded proxy at every step, which only the tiny DCT "
                              "autoencoder makes cheap; use anchor_space: latent for kind=paper")
         return self
