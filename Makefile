@@ -14,7 +14,7 @@ run: setup
 
 test:
 	bash scripts/setup.sh --test
-	$(PYTEST) -q -rs --junitxml=results/tests/junit.xml
+	$(PYTEST) -q -rs --durations=25 --junitxml=results/tests/junit.xml
 
 test-fast: setup
 	$(PYTEST) -q -m "not slow"
