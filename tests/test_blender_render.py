@@ -162,18 +162,54 @@ def test_normals_unit_and_materials_in_range(orbit_buffers):
 
 @pytest.mark.slow
 def test_materials_equal_known_values(orbit_buffers):
-    """Every surface pixel carries exactly one known (albedo, roughness, metallic) triple; all surfaces seen."""
+    """Most surface pixels carry exactly one known (albedo, roughness, metallic) triple, all surfaces seen; the
+    others (the material render is filtered as the RGB frames) are mixes of known materials."""
     out, _ = orbit_buffers
     b = io.read_buffers(out / "buffers" / "0000.exr")
     m = b.mask > 0.5
     names, idx, dev = nearest_material(b.albedo[m], b.roughness[m], b.metallic[m])
-    print(f"material deviation: max {dev.max():.2e}, tolerance {MATERIAL_TOL}")
-    assert dev.max() < MATERIAL_TOL
-    counts = {name: int((idx == k).sum()) for k, name in enumerate(names)}
+    pure = dev < MATERIAL_TOL
+    print(f"pure pixels {pure.mean():.3f}; deviation of the others: max {dev.max():.2e}")
+    assert pure.mean() > 0.5  # measured 0.64 at 96x64: outlines of 0.67-m checker squares are 2 px wide
+    counts = {name: int((idx[pure] == k).sum()) for k, name in enumerate(names)}
     assert all(c >= 20 for c in counts.values()), counts
-    # The ground is flat and horizontal: its normals point up.
-    ground = np.isin(idx, [names.index("ground_a"), names.index("ground_b")])
+    # A mixed pixel (on an outline, or where far checker squares shrink to a pixel) is a convex mix of the known
+    # materials: non-negative weights summing to 1 (residual from half-float storage). Dividing the filtered
+    # AOVs by the coverage keeps sky out of the mix.
+    from scipy.optimize import nnls
+
+    known = testing.known_materials()
+    table = np.array([[*c, r, mt] for c, r, mt in known.values()])
+    vals = np.c_[b.albedo[m], b.roughness[m], b.metallic[m]][~pure]
+    resid = [nnls(np.vstack([table.T, 10 * np.ones(len(table))]), np.r_[v, 10.0])[1] for v in vals]
+    print(f"mixed pixels: {len(vals)}, largest residual of the convex fit {max(resid):.2e}")
+    assert max(resid) < 5e-3
+    # The ground is flat and horizontal: its normals point up (geometry is point-sampled, never mixed).
+    ground = np.isin(idx, [names.index("ground_a"), names.index("ground_b")]) & pure
     np.testing.assert_allclose(b.normal[m][ground], np.broadcast_to([0.0, 0.0, 1.0], (int(ground.sum()), 3)), atol=1e-4)
+
+
+@pytest.mark.slow
+def test_buffer_albedo_is_the_pixel_average_of_a_texture_finer_than_a_pixel(scene, tmp_path):
+    """A checker of 5-mm squares seen from 3 m (about 3 cm per pixel): the buffers' albedo is the texture's
+    mean, as the camera sees it, not an aliased sample of one square (which would be 0.1 or 0.8)."""
+    from lightcrafter.blender import render
+
+    spec, _ = scene
+    s = copy.deepcopy(spec)
+    s["num_frames"] = 1
+    for t in s["trajectories"]:
+        t["frames"], t["buffer_frames"] = t["frames"][:1], 1
+    s["objects"] = []
+    s["ground"]["material"]["scale"] = 200.0
+    assert render.render_buffers(s, "static", tmp_path / "fine") == 1
+    b = io.read_buffers(tmp_path / "fine" / "buffers" / "0000.exr")
+    g = b.albedo[b.mask > 0.5][:, 0]
+    mean_ab = (testing.known_materials()["ground_a"][0][0] + testing.known_materials()["ground_b"][0][0]) / 2
+    print(f"ground albedo: mean {g.mean():.3f} (texture mean {mean_ab:.3f}), std {g.std():.3f}")
+    assert abs(g.mean() - mean_ab) < 0.05
+    assert g.std() < 0.12  # a point sample of the two colours has std 0.35
+    assert io.read_json(tmp_path / "fine" / "buffers.json")["producer"]["materials"]["spp"] == render.MATERIAL_SPP
 
 
 @pytest.mark.slow

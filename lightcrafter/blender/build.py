@@ -222,7 +222,6 @@ def configure_render(
     sc = bpy.context.scene
     sc.render.engine = "CYCLES"
     used = select_device(device)
-    sc.cycles.samples = int(samples)
     sc.cycles.use_adaptive_sampling = False
     if denoiser not in (None, "none", "oidn"):
         raise DataError(f"render.denoiser={denoiser!r}: use 'none' or 'oidn'")
@@ -236,8 +235,7 @@ def configure_render(
     sc.cycles.seed = int(spec.get("render", {}).get("seed", 0))
     sc.cycles.use_animated_seed = False
     sc.cycles.max_bounces = int(max_bounces)
-    sc.cycles.pixel_filter_type = "BOX" if filter_width_px < 1.0 else "BLACKMAN_HARRIS"
-    sc.cycles.filter_width = float(filter_width_px)
+    set_sampling(samples, filter_width_px)
     sc.render.film_transparent = film_transparent
     sc.render.use_persistent_data = True
     if threads:
@@ -255,6 +253,18 @@ def configure_render(
             aov = vl.aovs.add()
             aov.name, aov.type = name, kind
     return used
+
+
+def set_sampling(samples: int, filter_width_px: float) -> None:
+    """Samples per pixel and the pixel filter of the next render: a box below 1 px (0.01 px: one ray through
+    the pixel centre), else Cycles' Blackman-Harris of that width (pixels). Changing only these between two
+    renders of one frame keeps the synced scene (persistent data)."""
+    import bpy
+
+    sc = bpy.context.scene
+    sc.cycles.samples = int(samples)
+    sc.cycles.pixel_filter_type = "BOX" if filter_width_px < 1.0 else "BLACKMAN_HARRIS"
+    sc.cycles.filter_width = float(filter_width_px)
 
 
 # ----------------------------------------------------------------------------- materials

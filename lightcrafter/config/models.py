@@ -136,7 +136,8 @@ class Scenes(Section):
 
 # ----------------------------------------------------------------------------- rendering
 class Render(Section):
-    """Cycles ground truth (buffers are always one sample through the pixel centre)."""
+    """Cycles ground truth (buffers: depth, normals and mask from one sample through the pixel centre; albedo,
+    roughness and metallic filtered over the pixel as the RGB frames are, lightcrafter/blender/render.py)."""
 
     spp: PositiveInt = Field(64, description="Cycles samples per pixel of radiance frames (paper scale: 64)")
     seed: NonNegativeInt = Field(0, description="Cycles sampling seed (renders are deterministic)")
