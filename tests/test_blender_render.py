@@ -64,14 +64,19 @@ def cross_frame_error_mm(depth_a, K_a, c2w_a, depth_b, K_b, c2w_b) -> tuple[np.n
     return np.abs(z_b - z)[keep] * ray_len[keep] * 1000.0, float(keep.mean())
 
 
+def material_table() -> tuple[list[str], np.ndarray]:
+    """Names of the known materials and their (albedo R, G, B, roughness, metallic) rows."""
+    known = testing.known_materials()
+    return list(known), np.array([[*c, r, m] for c, r, m in known.values()])
+
+
 def nearest_material(albedo, rough, metal):
     """Index of the closest known material and the max abs deviation from it, per pixel."""
-    known = testing.known_materials()
-    table = np.array([[*c, r, m] for c, r, m in known.values()])
+    names, table = material_table()
     px = np.c_[albedo, rough, metal]
     dev = np.abs(px[:, None, :] - table[None]).max(-1)
     idx = dev.argmin(1)
-    return list(known), idx, dev[np.arange(len(px)), idx]
+    return names, idx, dev[np.arange(len(px)), idx]
 
 
 # ----------------------------------------------------------------------------- fixtures
@@ -178,8 +183,7 @@ def test_materials_equal_known_values(orbit_buffers):
     # AOVs by the coverage keeps sky out of the mix.
     from scipy.optimize import nnls
 
-    known = testing.known_materials()
-    table = np.array([[*c, r, mt] for c, r, mt in known.values()])
+    _, table = material_table()
     vals = np.c_[b.albedo[m], b.roughness[m], b.metallic[m]][~pure]
     resid = [nnls(np.vstack([table.T, 10 * np.ones(len(table))]), np.r_[v, 10.0])[1] for v in vals]
     print(f"mixed pixels: {len(vals)}, largest residual of the convex fit {max(resid):.2e}")
