@@ -200,6 +200,72 @@ def test_estimator_forward_shapes_and_units():
         m(torch.zeros(1, 3, 30, 48))
 
 
+def test_shading_ratio_albedo_keeps_the_inputs_colour_and_level():
+    """With albedo_head shading_ratio the albedo follows the input's absolute colour: the same frame with its
+    linear red doubled about doubles the albedo's red where it does not clip (the shading S, seen through
+    group norms, moves little); green and blue stay. The direct head of the same weights barely moves (its
+    group norms remove a frame's uniform colour)."""
+    import torch
+
+    from lightcrafter import io
+    from lightcrafter.recon.estimator import GBufferNet, predict
+
+    rng = np.random.default_rng(0)
+    lin = (0.05 + 0.2 * rng.random((32, 48, 3))).astype(np.float32)
+    red = lin * np.float32([2.0, 1.0, 1.0])
+    nets = {}
+    for head in ("direct", "shading_ratio"):
+        torch.manual_seed(0)
+        nets[head] = GBufferNet([8, 16], head)
+    # the same U-Net with the other head (its light tint starts at none)
+    nets["shading_ratio"].load_state_dict(nets["direct"].state_dict(), strict=False)
+    a, b = (predict(nets["shading_ratio"], io.linear_to_display(x))["albedo"] for x in (lin, red))
+    ok = b[..., 0] < 1
+    assert ok.mean() > 0.5
+    gain = np.median(b[..., 0][ok] / a[..., 0][ok])
+    assert 1.7 < gain < 2.5, gain
+    assert abs(np.median(b[..., 1:] / a[..., 1:]) - 1) < 0.25
+    d0, d1 = (predict(nets["direct"], io.linear_to_display(x))["albedo"] for x in (lin, red))
+    assert abs(np.median(d1[..., 0] / d0[..., 0]) - 1) < 0.2
+    with pytest.raises(ValueError, match="albedo_head"):
+        GBufferNet([8, 16], "ratio")
+
+
+def test_shading_ratio_albedo_is_pulled_down_where_it_clips():
+    """Where input / S exceeds 1 the albedo is 1 and its loss still has a gradient on S, so an over-bright
+    estimate can fall below 1 again."""
+    import torch
+
+    from lightcrafter.recon.estimator import GBufferNet
+
+    torch.manual_seed(0)
+    net = GBufferNet([8, 16], "shading_ratio")
+    rgb = torch.full((1, 3, 16, 16), 0.99)
+    raw = torch.full((1, 3, 16, 16), -3.0, requires_grad=True)  # tiny shading: ratio far above 1
+    alb = net._albedo(raw, rgb)
+    assert float(alb.detach().max()) == 1.0
+    (alb - 0.5).abs().mean().backward()
+    assert raw.grad is not None and float(raw.grad.mean()) < 0  # a larger shading lowers the loss
+
+
+def test_saved_estimator_loads_with_its_albedo_head(tmp_path):
+    """The head is part of the saved config: a shading-ratio estimator loads as one and predicts the same."""
+    import torch
+
+    from lightcrafter.recon import estimator as est
+
+    torch.manual_seed(0)
+    cfg = est.EstimatorConfig(widths=[8, 16], albedo_head="shading_ratio")
+    net = est.GBufferNet(cfg.widths, cfg.albedo_head)
+    with torch.no_grad():
+        net.light_tint.weight.copy_(torch.eye(3))
+    est.save(net, cfg, tmp_path / "e.pt")
+    back = est.load(tmp_path / "e.pt")
+    assert back.albedo_head == "shading_ratio"
+    x = np.random.default_rng(0).random((16, 24, 3)).astype(np.float32)
+    np.testing.assert_array_equal(est.predict(back, x)["albedo"], est.predict(net, x)["albedo"])
+
+
 def test_estimator_learns_a_clip(tmp_path):
     """A few hundred steps on one clip beat the untrained network on its depth and normals."""
     from lightcrafter.recon import estimator as est

@@ -12,7 +12,8 @@ Inputs and outputs (per frame, H and W multiples of 8)
 * ``depth``: z-depth in metres of the training scenes' scale (exp of the predicted log-depth; a
   reconstruction rescales it per frame to its cameras' units);
 * ``normal_cam``: unit normals in CAMERA coordinates, OpenCV axes (x right, y down, z forward);
-* ``albedo``: linear base colour in [0, 1]; ``roughness``, ``metallic`` in [0, 1];
+* ``albedo``: linear base colour in [0, 1], from the features or as the linear input over a predicted
+  shading (config ``albedo_head``, :class:`GBufferNet`); ``roughness``, ``metallic`` in [0, 1];
 * ``mask``: probability that the pixel is a surface (1) rather than the environment (0).
 
 Loss (ground-truth surface pixels unless stated): L1 on log depth, (1 - cos) on normals, L1 on
@@ -66,11 +67,36 @@ def _block(cin: int, cout: int) -> nn.Sequential:
                          nn.Conv2d(cout, cout, 3, padding=1), nn.GroupNorm(min(8, cout), cout), nn.SiLU())
 
 
-class GBufferNet(nn.Module):
-    """U-Net over [RGB, x, y] -> raw output channels of :data:`OUTPUT_CHANNELS`."""
+SHADING_LOG_OFFSET = float(np.log(0.7))  # log shading of a lit surface under scenes.white_radiance = 0.7
 
-    def __init__(self, widths: list[int]):
+
+def srgb_decode(display: torch.Tensor) -> torch.Tensor:
+    """Linear values of sRGB-encoded display values in [0, 1] (IEC 61966-2-1, as io.display_to_linear)."""
+    x = display.clamp(0, 1)
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def log_chroma(display: torch.Tensor) -> torch.Tensor:
+    """(B, 3) log of each frame's mean linear colour over its channel mean (0 for a grey frame): the light's
+    colour under a grey-world assumption, which the shading-ratio head maps to the shading's colour."""
+    mean = srgb_decode(display).mean(dim=(2, 3)).clamp_min(1e-4)
+    return torch.log(mean) - torch.log(mean).mean(dim=1, keepdim=True)
+
+
+class GBufferNet(nn.Module):
+    """U-Net over [RGB, x, y] -> raw output channels of :data:`OUTPUT_CHANNELS`.
+
+    ``albedo_head`` (config recon.estimator.albedo_head): ``direct``, albedo = sigmoid of the head's three
+    albedo channels; ``shading_ratio``, log S = those channels + :data:`SHADING_LOG_OFFSET` + a learned linear
+    map of the frame's :func:`log_chroma` (the light's colour, which the group norms hide from the U-Net), and
+    albedo = min(linear input / S, 1) per channel, with the gradient of the ratio kept where it clips so that
+    an over-bright estimate is still pulled down."""
+
+    def __init__(self, widths: list[int], albedo_head: str = "direct"):
         super().__init__()
+        if albedo_head not in ("direct", "shading_ratio"):
+            raise ValueError(f"albedo_head {albedo_head!r}: expected direct or shading_ratio")
+        self.albedo_head = albedo_head
         self.widths = list(widths)
         self.down = nn.ModuleList()
         cin = 5
@@ -81,15 +107,30 @@ class GBufferNet(nn.Module):
         for w_skip, w in zip(reversed(widths[:-1]), reversed(widths[1:])):
             self.up.append(_block(w + w_skip, w_skip))
         self.head = nn.Conv2d(widths[0], sum(OUTPUT_CHANNELS.values()), 1)
+        if albedo_head == "shading_ratio":  # the light's colour, from the frame's mean colour (starts at none)
+            self.light_tint = nn.Linear(3, 3)
+            nn.init.zeros_(self.light_tint.weight)
+            nn.init.zeros_(self.light_tint.bias)
+
+    def _albedo(self, raw: torch.Tensor, rgb: torch.Tensor, frame_chroma: torch.Tensor | None = None) -> torch.Tensor:
+        if self.albedo_head == "direct":
+            return torch.sigmoid(raw)
+        if frame_chroma is None:
+            frame_chroma = log_chroma(rgb)
+        log_s = raw + SHADING_LOG_OFFSET + self.light_tint(frame_chroma)[:, :, None, None]
+        ratio = srgb_decode(rgb) * torch.exp(-log_s)
+        return ratio - (ratio - 1).clamp_min(0).detach()  # value min(ratio, 1), gradient of the ratio
 
     @property
     def stride(self) -> int:
         return 2 ** (len(self.widths) - 1)
 
-    def forward(self, rgb: torch.Tensor, coords: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(self, rgb: torch.Tensor, coords: torch.Tensor | None = None,
+                frame_chroma: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """rgb: (B, 3, H, W) display values in [0, 1]; coords: (B, 2, H, W) normalised full-frame pixel
         coordinates (x, y in [-1, 1]; default: those of a full frame, give a crop's own when training
-        on crops) -> dict of predictions (see module docstring)."""
+        on crops); frame_chroma: (B, 3) :func:`log_chroma` of the whole frames (default: of ``rgb``; give the
+        full frames' when training on crops) -> dict of predictions (see module docstring)."""
         b, _, h, w = rgb.shape
         if h % self.stride or w % self.stride:
             raise ValueError(f"frame {w}x{h}: width and height must be multiples of {self.stride}")
@@ -110,7 +151,7 @@ class GBufferNet(nn.Module):
             "log_depth": parts["log_depth"][:, 0] + 1.5,  # centred on e^1.5 = 4.5 m, the cameras' typical distance
             "normal": F.normalize(parts["normal"] + torch.tensor([0.0, -1.0, 0.0], device=out.device).view(1, 3, 1, 1),
                                   dim=1),
-            "albedo": torch.sigmoid(parts["albedo"]),
+            "albedo": self._albedo(parts["albedo"], rgb, frame_chroma),
             "roughness": torch.sigmoid(parts["roughness"][:, 0]),
             "metallic": torch.sigmoid(parts["metallic"][:, 0] - 2.0),
             "mask_logit": parts["mask"][:, 0],
@@ -276,7 +317,7 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
-    model = GBufferNet(cfg.widths).to(dev)
+    model = GBufferNet(cfg.widths, cfg.albedo_head).to(dev)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.steps, 1), eta_min=cfg.lr * 0.05)
     curve, seconds = [], 0.0
@@ -288,6 +329,7 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
         batch = _stack([train[i] for i in idx])
         h, w = batch.rgb.shape[-2:]
         coords = frame_coords(h, w).expand(len(idx), 2, h, w)
+        chroma = log_chroma(batch.rgb)  # of the whole frames (the exposure scaling below changes it only by clipping)
         if cfg.crop:
             ch, cw = min(cfg.crop[0], h), min(cfg.crop[1], w)
             y0 = int(torch.randint(h - ch + 1, (1,), generator=gen)) // 8 * 8
@@ -303,8 +345,8 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
             batch.rgb = ((batch.rgb.clamp_min(0) ** 2.2) * torch.exp2(u)).clamp(0, 1) ** (1 / 2.2)
         if dev.type != "cpu":  # all random draws above stay on the CPU generator
             batch = Sample(**{k: getattr(batch, k).to(dev) for k in Sample.__dataclass_fields__})
-            coords = coords.to(dev)
-        terms = loss_terms(model(batch.rgb, coords.contiguous()), batch)
+            coords, chroma = coords.to(dev), chroma.to(dev)
+        terms = loss_terms(model(batch.rgb, coords.contiguous(), chroma), batch)
         loss = sum(terms.values())
         opt.zero_grad()
         loss.backward()
@@ -355,7 +397,7 @@ def load(path: str | Path) -> GBufferNet:
             or "widths" not in st["config"]:
         raise io.DataError(f"{path}: not a G-buffer estimator file (no 'state' and 'config' entries, as "
                            f"lightcrafter.recon.estimator.save writes); {fix}")
-    model = GBufferNet(st["config"]["widths"])
+    model = GBufferNet(st["config"]["widths"], st["config"].get("albedo_head", "direct"))
     try:
         model.load_state_dict(st["state"])
     except RuntimeError:
