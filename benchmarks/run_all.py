@@ -19,11 +19,12 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 ORDER = ["cycles_spp", "cycles_device", "proxy_spp", "proxy_vs_cycles", "envfit", "recon_error", "sfm_settings",
-         "phi_budget", "refiner", "refiner_clean_buffers", "dag_scale", "storage"]
+         "phi_budget", "refiner", "refiner_clean_buffers", "refiner_scale", "dag_scale", "storage"]
 # Benchmarks that read the default run's outputs, and the Snakemake target they need.
 NEEDS_PIPELINE = {"proxy_vs_cycles": "ground_truth",
                   "refiner_clean_buffers": "results/datasets/clean_buffers/pairs.jsonl",
-                  "storage": "pairs", "phi_budget": "all", "sfm_settings": "ground_truth"}
+                  "refiner_scale": "results/datasets/full/pairs.jsonl", "storage": "pairs", "phi_budget": "all",
+                  "sfm_settings": "ground_truth"}
 
 
 def main() -> int:

@@ -84,3 +84,37 @@ def test_train_script_fails_clearly_without_train_pairs(tmp_path):
     r = subprocess.run([sys.executable, str(SCRIPTS / "train_refiner.py"), "--pairs", "pairs.jsonl", "--out", "m"],
                        cwd=tmp_path, capture_output=True, text=True)
     assert r.returncode == 1 and "no pairs with split == 'train'" in r.stderr
+
+
+@pytest.mark.slow
+def test_scale_benchmark_keeps_validation_fixed_while_data_and_model_size_vary(tmp_path):
+    """benchmarks/refiner_scale.py: one fit per (blocks, fit groups), candidates per step, the same validation
+    clips in every fit, and the test split never read (its folders do not exist)."""
+    recs = []
+    for i, scene in enumerate("abcd"):
+        p = toy_pair(i, num_frames=5)
+        _write_clip(tmp_path / f"p{i}/proxy", p["proxy"])
+        _write_clip(tmp_path / f"p{i}/target", p["target"])
+        recs.append({"pair_id": f"p{i}", "kind": "synthetic", "scene_id": scene, "proxy": f"p{i}/proxy",
+                     "target": f"p{i}/target", "num_frames": 5, "width": 48, "height": 32, "split": "train"})
+    recs.append({**recs[0], "pair_id": "t0", "scene_id": "e", "proxy": "missing/proxy", "target": "missing/target",
+                 "split": "test"})
+    write_jsonl(tmp_path / "pairs.jsonl", recs)
+    cfg = {"model": {"ae_coeffs": [8, 4, 4]}, "infer": {"num_steps": 2},
+           "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0], "max_val_pairs": 1}}
+    bench = Path(__file__).resolve().parents[1] / "benchmarks" / "refiner_scale.py"
+    _run(bench, "--pairs", "pairs.jsonl", "--config-json", json.dumps(cfg), "--layers", "1", "2", "--fit-groups", "1",
+         "0", "--max-steps", "2", "--steps", "1", "--out", "scale.json", cwd=tmp_path)
+    res = json.loads((tmp_path / "scale.json").read_text())
+    runs = res["runs"]
+    assert [(r["layers"], r["fit_groups"]) for r in runs] == [(1, 1), (1, 3), (2, 1), (2, 3)]
+    assert len({json.dumps(r["val_pairs"]) for r in runs}) == 1 and len(runs[0]["val_pairs"]) == 1
+    assert runs[0]["val_groups"] == runs[1]["val_groups"] and runs[0]["fit_pairs"] == 1 and runs[1]["fit_pairs"] == 3
+    assert runs[2]["transformer_parameters"] > runs[0]["transformer_parameters"]
+    assert len(res["points"]) == 4 * 2  # steps 1 and 2 of every fit
+    for r in runs:
+        assert [s["step"] for s in r["steps"]] == [1, 2]
+        for s in r["steps"]:
+            assert s["val_refined_minus_proxy_db"] == pytest.approx(s["val_refined_psnr_db"] - r["val_proxy_psnr_db"],
+                                                                    abs=2e-3)
+            assert np.isfinite(s["fit_refined_minus_proxy_db"]) and np.isfinite(s["val_anchor_psnr_db"])
