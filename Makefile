@@ -3,8 +3,6 @@
 export PATH := $(CURDIR)/.venv/bin:$(PATH)
 SNAKEMAKE := snakemake
 PYTEST := pytest
-# two workers, each test module one unit (tests/conftest.py): the CPU idles less while one waits on a single thread
-PYTEST_WORKERS := -n 2 --no-loadscope-reorder
 
 .PHONY: setup run test test-fast bench lint clean
 
@@ -16,10 +14,10 @@ run: setup
 
 test:
 	bash scripts/setup.sh --test
-	$(PYTEST) -q -rs --durations=25 $(PYTEST_WORKERS) --junitxml=results/tests/junit.xml
+	$(PYTEST) -q -rs --durations=25 --junitxml=results/tests/junit.xml
 
 test-fast: setup
-	$(PYTEST) -q -m "not slow" $(PYTEST_WORKERS)
+	$(PYTEST) -q -m "not slow"
 
 bench: setup
 	.venv/bin/python benchmarks/run_all.py

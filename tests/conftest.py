@@ -16,40 +16,6 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-# `make test` runs the suite on two pytest-xdist workers (-n 2 --no-loadscope-reorder, scheduler below).
-# Each test module is one work unit, so its module-scoped fixtures (a SLURM cluster, a rendered scene, a
-# paper dry run) are built once per run; the modules that use the session fixture e2e_run (the tiny
-# end-to-end run, the longest fixture) form one unit, so that run happens once. The two longest units go
-# first, one per worker; the rest are handed out in collection order as workers free up.
-E2E_MODULES = ("test_pipeline_e2e", "test_kill_resume", "test_config", "test_refiner_paper_preset", "test_relight")
-FIRST_UNITS = ("e2e", "test_slurm")
-
-
-def work_unit(nodeid: str) -> str:
-    """The xdist work unit of a test: its module's name, or "e2e" for the modules in E2E_MODULES."""
-    module = Path(nodeid.split("::", 1)[0]).stem
-    return "e2e" if module in E2E_MODULES else module
-
-
-def pytest_collection_modifyitems(config, items):
-    for item in items:
-        if "e2e_run" in getattr(item, "fixturenames", ()) and work_unit(item.nodeid) != "e2e":
-            raise pytest.UsageError(f"{item.nodeid} uses e2e_run: add its module to E2E_MODULES in tests/conftest.py "
-                                    "so that the end-to-end run happens once per test run")
-    rank = {u: i for i, u in enumerate(FIRST_UNITS)}
-    items.sort(key=lambda it: rank.get(work_unit(it.nodeid), len(rank)))  # stable: collection order otherwise
-
-
-@pytest.hookimpl(optionalhook=True)  # a pytest-xdist hook: unknown (and unused) without it
-def pytest_xdist_make_scheduler(config, log):
-    from xdist.scheduler import LoadScopeScheduling
-
-    class ModuleUnits(LoadScopeScheduling):
-        def _split_scope(self, nodeid: str) -> str:
-            return work_unit(nodeid)
-
-    return ModuleUnits(config, log)
-
 
 @pytest.fixture(scope="session")
 def repo() -> Path:
