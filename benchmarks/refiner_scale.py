@@ -39,20 +39,21 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 
-def subset_manifest(pairs: Path, out: Path, n_fit_groups: int | None, val_scenes, seed: int) -> dict:
+def subset_manifest(pairs: Path, out: Path, n_fit_groups: int | None, val_scenes, seed: int) -> tuple[dict, list]:
     """Write the train records of the validation groups and of the first ``n_fit_groups`` fit groups
-    (all when None) to ``out``; returns the carve-out of the full train split."""
+    (all when None) to ``out``; returns the carve-out of the full train split and the fit groups kept."""
     from lightcrafter.refiner.validation import carve_validation, pair_group
 
     lines = [ln for ln in pairs.read_text().splitlines() if ln.strip()]
     records = [json.loads(ln) for ln in lines]
     train = [r for r in records if r.get("split") == "train"]
     carve = carve_validation(train, val_scenes, seed)
-    keep = set(carve["val_groups"]) | set(carve["fit_groups"][:n_fit_groups] if n_fit_groups else carve["fit_groups"])
+    fit_groups = carve["fit_groups"][:n_fit_groups] if n_fit_groups else carve["fit_groups"]
+    keep = set(carve["val_groups"]) | set(fit_groups)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("".join(ln + "\n" for ln, r in zip(lines, records)
                            if r.get("split") == "train" and pair_group(r) in keep))
-    return carve
+    return carve, fit_groups
 
 
 def main() -> int:
@@ -103,7 +104,7 @@ def main() -> int:
             cfg["model"]["transformer"] = {**cfg["model"]["transformer"], "num_layers": layers}
             d = work / f"layers{layers}_fit{n_fit or 'all'}"
             manifest = d / "pairs.jsonl"
-            carve = subset_manifest(pairs, manifest, n_fit or None, cfg["select"]["val_scenes"], a.seed)
+            carve, fit_groups = subset_manifest(pairs, manifest, n_fit or None, cfg["select"]["val_scenes"], a.seed)
             t0 = time.perf_counter()
             summ = fit_refiner(cfg, manifest, d, progress=False, log=_logger(d))
             fit_s = time.perf_counter() - t0
@@ -134,7 +135,7 @@ def main() -> int:
                 print(f"layers {layers} fit groups {n_fit or 'all'} step {step}: {rows[-1]}", flush=True)
             params = sum(p.numel() for p in model.transformer.parameters())
             runs.append({"layers": layers, "transformer_parameters": int(params),
-                         "fit_groups": len(carve["fit_groups"][:n_fit] if n_fit else carve["fit_groups"]),
+                         "fit_groups": len(fit_groups),
                          "fit_pairs": len(summ["fit_pairs"]), "val_groups": carve["val_groups"],
                          "val_pairs": summ["val_pairs"], "val_proxy_psnr_db": round(proxy_val["psnr_db"], 3),
                          "fit_proxy_psnr_db": round(proxy_fit["psnr_db"], 3),
