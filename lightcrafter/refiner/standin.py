@@ -64,7 +64,9 @@ def write_tiny_checkpoint(root, *, height_px: int = 32, width_px: int = 48, fram
         corpus = [" ".join(words[(i * k) % len(words)] for k in range(1, 9)) for i in range(200)]
         spm.SentencePieceTrainer.train(sentence_iterator=iter(corpus), model_prefix=f"{tmp}/spiece",
                                        vocab_size=48, model_type="unigram", pad_id=0, eos_id=1, unk_id=2,
-                                       bos_id=-1, minloglevel=2)
+                                       bos_id=-1, minloglevel=2,
+                                       # a soft limit: sentencepiece 0.2.2 reaches only 46 pieces here
+                                       hard_vocab_limit=False)
         tokenizer = T5Tokenizer(vocab_file=f"{tmp}/spiece.model", extra_ids=0, model_max_length=text_len)
         scheduler = CogVideoXDDIMScheduler(**{k: v for k, v in COGVIDEOX_5B_SCHEDULER.items()})
         pipe = CogVideoXImageToVideoPipeline(tokenizer=tokenizer, text_encoder=text_encoder, vae=vae,
