@@ -155,7 +155,12 @@ def _mis(a, b):
 def camera_hit(prim: _Primary, pos, shadow_offset_px: float):
     """Camera ray through film position ``pos`` (Point2f in [0, 1]^2, pixel corners at the edges),
     its primary hit and the shading set-up of R: (ray, si, hit, albedo, roughness, metallic,
-    shading frame (two-sided normal), wo (local, clamped above the surface), shadow-ray origin)."""
+    shading frame (two-sided normal), wo (local, clamped above the surface), shadow-ray origin).
+
+    On the CUDA variants the outputs are evaluated here: OptiX allows one shader binding table per
+    kernel, so a shadow ray traced against another scene (the visibility mesh) in the same kernel as this
+    camera ray is dropped by Dr.Jit ("more than one OptiX shader binding table"), which rendered no cast
+    shadows on GPUs (scripts/gpu_check.sh). The LLVM variants keep one fused kernel."""
     ray, _ = prim.sensor.sample_ray(0.0, 0.0, pos, mi.Point2f(0.5))
     si = prim.scene.ray_intersect(ray)
     hit = si.is_valid()
@@ -175,6 +180,8 @@ def camera_hit(prim: _Primary, pos, shadow_offset_px: float):
     wo = dr.normalize(mi.Vector3f(wo.x, wo.y, dr.maximum(wo.z, material.COS_MIN)))
     eps = shadow_offset_px * dr.maximum(si.t, 1e-3) / prim.fx + 1e-4
     p0 = si.p + n * eps
+    if dr.backend_v(hit) == dr.JitBackend.CUDA:
+        dr.eval(si.p, hit, albedo, rough, metal, frame, wo, p0)
     return ray, si, hit, albedo, rough, metal, frame, wo, p0
 
 
