@@ -2,8 +2,11 @@
 # The GPU check (run it on a GPU node; about 5-8 minutes). Writes results/bench/gpu_check/gpu_check.json:
 #   1. the paper refiner preset rehearsed on CUDA (scripts/rehearse_refiner.py --device cuda: a tiny
 #      checkpoint in CogVideoX-5B-I2V's layout, bf16 + fp32 masters, resume, CFG, fused tiling);
-#   2. Mitsuba's forward renderer R: cuda_ad_rgb against llvm_ad_rgb on the same scene (PSNR of the
-#      4-spp renders against each variant's own 256-spp reference, and seconds per render);
+#   2. Mitsuba's forward renderer R: cuda_ad_rgb against llvm_ad_rgb on one 720x480 frame at the default
+#      proxy.spp, interleaved in one run (benchmarks/proxy_device.py: seconds per frame, the speed ratio,
+#      each variant against its own 1024-spp frame, and the two 1024-spp frames against each other;
+#      COMPARE_REF=FILE.npy scores them against a frame saved by --save-ref elsewhere, e.g. where the
+#      GPU node has no libLLVM for llvm_ad_rgb; HDRI=FILE.exr where bpy's bundled forest.exr is absent);
 #   3. Cycles: OptiX and CUDA against the CPU on one 720x480 frame (seconds, PSNR against the CPU frame).
 #   bash scripts/gpu_check.sh            (after bash scripts/setup.sh with a CUDA build of torch)
 set -euo pipefail
@@ -13,11 +16,8 @@ OUT=${OUT:-results/bench/gpu_check}
 mkdir -p "$OUT"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader > "$OUT/gpu.txt" || echo "no nvidia-smi" > "$OUT/gpu.txt"
 "$PY" scripts/rehearse_refiner.py --device cuda --out "$OUT/rehearsal" > "$OUT/rehearsal.log" 2>&1 || echo "rehearsal failed: $OUT/rehearsal.log"
-for v in llvm_ad_rgb cuda_ad_rgb; do
-  LIGHTCRAFTER_MI_VARIANT=$v timeout 240 "$PY" benchmarks/proxy_spp.py --spp 4 --cycles-spp 1 --ref-spp 256 \
-    --cycles-ref-spp 1 --repeats 2 --threads 8 --out "$OUT/mitsuba_$v.json" > "$OUT/mitsuba_$v.log" 2>&1 \
-    || echo "mitsuba $v failed: $OUT/mitsuba_$v.log"
-done
+timeout 300 "$PY" benchmarks/proxy_device.py --repeats 5 --out "$OUT/mitsuba.json" --save-ref "$OUT/mitsuba_ref" \
+  ${COMPARE_REF:+--compare-ref "$COMPARE_REF"} ${HDRI:+--hdri "$HDRI"} > "$OUT/mitsuba.log" 2>&1 || echo "mitsuba failed: $OUT/mitsuba.log"
 timeout 240 "$PY" benchmarks/cycles_device.py --repeats 1 --devices cpu optix cuda --out "$OUT/cycles_device.json" \
   > "$OUT/cycles.log" 2>&1 || echo "cycles failed: $OUT/cycles.log"
 "$PY" - "$OUT" <<'PY'
@@ -28,7 +28,7 @@ def read(name):
     p = out / name
     return json.loads(p.read_text()) if p.is_file() else {"not_run": f"{p} missing (see the .log beside it)"}
 report = {"gpu": (out / "gpu.txt").read_text().strip(), "rehearsal": read("rehearsal/rehearsal.json"),
-          "mitsuba": {v: read(f"mitsuba_{v}.json") for v in ("llvm_ad_rgb", "cuda_ad_rgb")},
+          "mitsuba": read("mitsuba.json"),
           "cycles": read("cycles_device.json")}
 (out / "gpu_check.json").write_text(json.dumps(report, indent=1, default=str))
 print(f"gpu_check: {out / 'gpu_check.json'}")

@@ -228,3 +228,39 @@ def test_oidn_denoiser_brings_a_noisy_render_closer_to_the_converged_one():
     assert np.isfinite(clean[0]).all() and (clean[0] >= 0).all()
     mse = lambda x: float(np.mean((x - ref[0]) ** 2))  # noqa: E731
     assert mse(clean[0]) < 0.5 * mse(noisy[0]), (mse(clean[0]), mse(noisy[0]))
+
+
+def test_device_benchmark_interleaves_the_variants_it_can_run_and_names_the_rest(tmp_path):
+    """benchmarks/proxy_device.py (the GPU check's Mitsuba part) on a CPU node: llvm_ad_rgb is timed in
+    every repeat, cuda_ad_rgb is reported as not run with Mitsuba's reason, and a reference frame saved by
+    one run agrees exactly with the next run's (same seed, same variant)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    common = [sys.executable, str(root / "benchmarks" / "proxy_device.py"), "--width", "48", "--height", "32",
+              "--repeats", "3", "--ref-spp", "32", "--threads", "2"]
+    r = subprocess.run(common + ["--variants", "llvm_ad_rgb", "cuda_ad_rgb", "--save-ref", str(tmp_path / "ref"),
+                                 "--out", str(tmp_path / "a.json")], capture_output=True, text=True, cwd=root)
+    assert r.returncode == 0, r.stderr[-2000:]
+    a = json.loads((tmp_path / "a.json").read_text())
+    llvm = a["variants"]["llvm_ad_rgb"]
+    assert llvm["seconds_per_frame"]["n"] == 3 and llvm["seconds_per_frame"]["min"] > 0
+    assert llvm["all_finite"] and 10 < llvm["psnr_vs_own_reference_db"] < 60
+    if "cuda_ad_rgb" not in a["variants"]:  # a node without a GPU names the reason instead of a number
+        assert "cuda_ad_rgb" in a["not_run"] and a["not_run"]["cuda_ad_rgb"]
+    assert (tmp_path / "ref" / "llvm_ad_rgb_ref.npy").is_file()
+
+    r = subprocess.run(common + ["--variants", "llvm_ad_rgb", "--compare-ref", str(tmp_path / "ref" / "llvm_ad_rgb_ref.npy"),
+                                 "--out", str(tmp_path / "b.json")], capture_output=True, text=True, cwd=root)
+    assert r.returncode == 0, r.stderr[-2000:]
+    b = json.loads((tmp_path / "b.json").read_text())
+    assert b["references_agree"] == {"llvm_ad_rgb_vs_llvm_ad_rgb_ref.npy": True}
+    assert b["reference_agreement_psnr_db"]["llvm_ad_rgb_vs_llvm_ad_rgb_ref.npy"] > 60
+
+    r = subprocess.run(common[:2] + ["--variants", "no_such_variant", "--out", str(tmp_path / "c.json")],
+                       capture_output=True, text=True, cwd=root)
+    assert r.returncode != 0 and "no Mitsuba variant could render here" in r.stderr.splitlines()[-1]
+    assert not (tmp_path / "c.json").exists()
