@@ -254,3 +254,44 @@ def test_the_train_rule_launches_one_process_per_configured_gpu(tmp_path):
     r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, env=venv_env())
     assert r.returncode == 0, r.stderr[-2000:]
     assert "accelerate launch --multi_gpu --num_machines 1 --num_processes 2" in r.stdout
+
+
+def test_the_full_size_stand_in_has_cogvideox_5b_i2v_s_transformer():
+    """benchmarks/refiner_step.py measures memory on this stand-in: its transformer must be the released
+    one's shape (built on the meta device here: no memory), with 5B-I2V's config fields."""
+    from diffusers import CogVideoXTransformer3DModel
+
+    from lightcrafter.refiner.standin import COGVIDEOX_5B_I2V_TRANSFORMER, transformer_kwargs
+
+    kw = transformer_kwargs(height_px=480, width_px=720, frames=49, full_size=True)
+    with torch.device("meta"):
+        net = CogVideoXTransformer3DModel(**kw)
+    for key, want in COGVIDEOX_5B_I2V_TRANSFORMER.items():
+        assert net.config[key] == want, key
+    n = sum(p.numel() for p in net.parameters())
+    assert 5.4e9 < n < 5.8e9  # "5B": 42 blocks of width 48 x 64 = 3072
+    tiny = sum(p.numel() for p in CogVideoXTransformer3DModel(
+        **transformer_kwargs(height_px=32, width_px=48, frames=49)).parameters())
+    assert tiny < 1e5
+
+
+def test_training_step_benchmark_runs_the_paper_preset_and_reports_each_step(tmp_path):
+    """benchmarks/refiner_step.py --size tiny on the CPU: the path the GPU check takes at full size (paper
+    preset through train(), checkpoint writes skipped): one time per optimizer step, finite losses, and
+    no checkpoint file left behind."""
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "step.json"
+    r = subprocess.run([sys.executable, str(root / "benchmarks" / "refiner_step.py"), "--size", "tiny", "--device", "cpu",
+                        "--steps", "2", "--work", str(tmp_path / "w"), "--out", str(out)],
+                       capture_output=True, text=True, cwd=root)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(out.read_text())
+    assert len(res["step_seconds"]) == 2 and all(s > 0 for s in res["step_seconds"])
+    assert res["seconds_per_step_after_first"]["n"] == 1
+    assert len(res["losses"]) == 2 and all(np.isfinite(res["losses"]))
+    assert res["preset"]["dtype"] == "bfloat16" and res["preset"]["gradient_checkpointing"]
+    assert 1e4 < res["transformer_parameters"] < 1e5
+    assert not list((tmp_path / "w" / "refiner").rglob("*.pt"))
+    r = subprocess.run([sys.executable, str(root / "benchmarks" / "refiner_step.py"), "--size", "tiny", "--device", "cpu",
+                        "--steps", "1", "--out", str(tmp_path / "x.json")], capture_output=True, text=True, cwd=root)
+    assert r.returncode != 0 and "--steps 1" in r.stderr.splitlines()[-1]

@@ -206,7 +206,8 @@ class Refiner(nn.Module):
     ``torch.autocast`` in ``model.dtype`` (bf16 mixed precision as the reference trainers do it: a
     1e-5 step on bf16 parameters rounds away for most weights, as |w| ~ 0.02 has a bf16 spacing of
     ~1.2e-4). Memory: 16 bytes per trainable parameter (fp32 weight, gradient, two AdamW moments),
-    ~80 GB for CogVideoX-5B plus activations. Inference (``training=False``) loads the parameters in
+    ~90 GB for CogVideoX-5B-I2V's 5.6e9, plus activations: 104.5 GiB peak measured on an H200 for 49x480x720
+    clips with gradient checkpointing (benchmarks/refiner_step.py). Inference (``training=False``) loads the parameters in
     ``model.dtype``. The autoencoder is frozen and kept in ``model.dtype``.
     """
 

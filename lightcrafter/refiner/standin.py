@@ -31,9 +31,31 @@ COGVIDEOX_5B_I2V_TRANSFORMER = {
 }
 
 
+# CogVideoX-5B-I2V's transformer widths (its transformer/config.json): ~5.6e9 parameters.
+COGVIDEOX_5B_WIDTHS = {"num_attention_heads": 48, "attention_head_dim": 64, "time_embed_dim": 512,
+                       "text_embed_dim": 4096, "num_layers": 42}
+
+
+def transformer_kwargs(*, height_px: int, width_px: int, frames: int, text_len: int = 226,
+                       full_size: bool = False) -> dict:
+    """The stand-in's CogVideoXTransformer3DModel arguments: tiny widths, or 5B-I2V's with ``full_size``."""
+    widths = (COGVIDEOX_5B_WIDTHS if full_size else
+              {"num_attention_heads": 2, "attention_head_dim": 16, "time_embed_dim": 32, "text_embed_dim": 32,
+               "num_layers": 1})
+    return dict(**widths, in_channels=32, out_channels=16, sample_width=width_px // 8, sample_height=height_px // 8,
+                sample_frames=frames, patch_size=2, temporal_compression_ratio=4, max_text_seq_length=text_len,
+                use_rotary_positional_embeddings=True, use_learned_positional_embeddings=True)
+
+
 def write_tiny_checkpoint(root, *, height_px: int = 32, width_px: int = 48, frames: int = 49, seed: int = 0,
-                          text_len: int = 226) -> Path:
-    """Write the stand-in checkpoint to ``root`` (module docstring); returns ``root``."""
+                          text_len: int = 226, full_size: bool = False, device: str = "cpu") -> Path:
+    """Write the stand-in checkpoint to ``root`` (module docstring); returns ``root``.
+
+    ``full_size``: the transformer at CogVideoX-5B-I2V's widths (COGVIDEOX_5B_WIDTHS, bf16 like the release,
+    ~11 GB) and the VAE at diffusers' AutoencoderKLCogVideoX defaults (CogVideoX's VAE), still random: for
+    measuring memory and seconds of the paper preset at full size (benchmarks/refiner_step.py). The T5
+    encoder stays one layer, at the transformer's text width. ``device``: where the weights are
+    initialised (``cuda`` makes the 5B initialisation take seconds instead of minutes)."""
     import tempfile
 
     import sentencepiece as spm
@@ -46,16 +68,19 @@ def write_tiny_checkpoint(root, *, height_px: int = 32, width_px: int = 48, fram
         raise ValueError(f"{width_px}x{height_px}x{frames}: sizes must be multiples of 16 and frames 4k+1")
     root = Path(root)
     torch.manual_seed(seed)
-    text_dim = 32
-    transformer = CogVideoXTransformer3DModel(
-        num_attention_heads=2, attention_head_dim=16, in_channels=32, out_channels=16, time_embed_dim=32,
-        text_embed_dim=text_dim, num_layers=1, sample_width=width_px // 8, sample_height=height_px // 8,
-        sample_frames=frames, patch_size=2, temporal_compression_ratio=4, max_text_seq_length=text_len,
-        use_rotary_positional_embeddings=True, use_learned_positional_embeddings=True)
-    vae = AutoencoderKLCogVideoX(
-        in_channels=3, out_channels=3, latent_channels=16, block_out_channels=(8, 8, 8, 8),
-        down_block_types=("CogVideoXDownBlock3D",) * 4, up_block_types=("CogVideoXUpBlock3D",) * 4,
-        layers_per_block=1, norm_num_groups=2, temporal_compression_ratio=4)
+    kwargs = transformer_kwargs(height_px=height_px, width_px=width_px, frames=frames, text_len=text_len,
+                                full_size=full_size)
+    text_dim = kwargs["text_embed_dim"]
+    with torch.device(device):
+        transformer = CogVideoXTransformer3DModel(**kwargs)
+        if full_size:
+            transformer = transformer.to(torch.bfloat16)
+            vae = AutoencoderKLCogVideoX(latent_channels=16, temporal_compression_ratio=4).to(torch.bfloat16)
+        else:
+            vae = AutoencoderKLCogVideoX(
+                in_channels=3, out_channels=3, latent_channels=16, block_out_channels=(8, 8, 8, 8),
+                down_block_types=("CogVideoXDownBlock3D",) * 4, up_block_types=("CogVideoXUpBlock3D",) * 4,
+                layers_per_block=1, norm_num_groups=2, temporal_compression_ratio=4)
     text_encoder = T5EncoderModel(T5Config(vocab_size=128, d_model=text_dim, d_kv=8, d_ff=64, num_layers=1,
                                            num_heads=4, relative_attention_num_buckets=8))
     with tempfile.TemporaryDirectory() as tmp:

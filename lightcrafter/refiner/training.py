@@ -317,7 +317,9 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
                                              sampler=PairIndexStream(len(dataset), _index_seed(cfg, rank), drawn),
                                              prefetch_factor=2, persistent_workers=False)
         pairs = iter(loader)
+    step_seconds = []  # wall seconds of each optimizer step of this call (data, encoding, update)
     while step < tr["max_steps"] and (stop_after is None or done_here < stop_after):
+        t_step = time.perf_counter()
         micro = []
         for _ in range(tr["grad_accum"]):
             with acc.accumulate(model.transformer):
@@ -361,6 +363,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
                 micro.append(float(loss.detach()))
         step += 1
         done_here += 1
+        step_seconds.append(time.perf_counter() - t_step)
         losses.append(sum(micro) / len(micro))
         bar.update(1)
         bar.set_postfix(loss=f"{losses[-1]:.4f}")
@@ -380,7 +383,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         with atomic_path(out_dir / "loss_curve.json") as tmp:
             tmp.write_text(json.dumps({"loss_per_optimizer_step": losses, "seconds_per_optimizer_step": sec}))
     log.info("stopped at step %d (%.3f s/optimizer step this run)", step, sec)
-    return {"losses": losses, "step": step, "seconds_per_step": sec, "rank": rank}
+    return {"losses": losses, "step": step, "seconds_per_step": sec, "step_seconds": step_seconds, "rank": rank}
 
 
 def save_model(path: Path, weights: dict, ae, cfg: dict) -> None:
