@@ -216,3 +216,18 @@ def test_lint_is_clean():
     res = subprocess.run([sys.executable, "-m", "snakemake", "--lint"], cwd=REPO, capture_output=True, text=True,
                          timeout=300, env=venv_env())
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+
+
+def test_make_bench_runs_or_names_every_benchmark():
+    """Each benchmarks/*.py is either run by `make bench` (run_all.ORDER) or listed with the reason it is
+    not (run_all.NOT_IN_BENCH), never both, never silently left out."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("run_all", REPO / "benchmarks" / "run_all.py")
+    run_all = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(run_all)
+    present = {p.stem for p in (REPO / "benchmarks").glob("*.py")} - {"run_all"}
+    assert not set(run_all.ORDER) & set(run_all.NOT_IN_BENCH)
+    assert present == set(run_all.ORDER) | set(run_all.NOT_IN_BENCH), present ^ (set(run_all.ORDER) | set(run_all.NOT_IN_BENCH))
+    assert all(why.strip() for why in run_all.NOT_IN_BENCH.values())
+    assert set(run_all.NEEDS_PIPELINE) <= set(run_all.ORDER)
