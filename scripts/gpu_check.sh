@@ -24,6 +24,8 @@ timeout 300 "$PY" benchmarks/proxy_device.py --repeats 5 --out "$OUT/mitsuba.jso
 if [ -z "${SKIP_FULL_STEP:-}" ]; then
   timeout 420 "$PY" benchmarks/refiner_step.py --size full --device cuda --steps 3 --out "$OUT/refiner_step.json" \
     > "$OUT/refiner_step.log" 2>&1 || echo "refiner_step failed: $OUT/refiner_step.log"
+else
+  echo '{"not_run": "skipped: SKIP_FULL_STEP is set"}' > "$OUT/refiner_step.json"
 fi
 timeout 240 "$PY" benchmarks/cycles_device.py --repeats 1 --devices cpu optix cuda --out "$OUT/cycles_device.json" \
   > "$OUT/cycles.log" 2>&1 || echo "cycles failed: $OUT/cycles.log"
