@@ -2,9 +2,10 @@
 seconds per frame at the paper's size, interleaved, and whether the variants render the same picture.
 
 Scene: proxy_spp's analytic buffers (four spheres on a grey ground, ``forest.exr`` rotated 0.5 rad) at
-``--width`` x ``--height`` (default 720x480, the paper's clips), rendered as a clip frame is rendered by
-default: ``--spp`` samples (the default config's ``proxy.spp``), multi-jittered, cast shadows from this
-frame's pixel-centre mesh (``visibility='frame'``), environment background.
+``--width`` x ``--height`` (default 720x480, the paper's clips): ``--spp`` samples (the default config's
+``proxy.spp``), multi-jittered, cast shadows from this frame's pixel-centre mesh (``visibility='frame'``),
+environment background, no denoiser. Timed renders reuse the meshes the warm-up built, as the frames of
+a static clip do; mesh building and denoising are not in the seconds.
 
 Each variant lives in its own worker process (Mitsuba types are variant specific), built once and warmed
 up (kernels compiled for this wavefront size). The parent then asks the workers in turn for one timed
@@ -42,9 +43,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lightcrafter import io  # noqa: E402
 from lightcrafter.metrics import display_psnr_db  # noqa: E402
 
-# Two reference frames of one scene differ by sampling noise alone: about 30 dB at 16 spp, plus
-# 10 log10(1024 / 16) = 18 dB at 1024 spp, so ~48 dB. Below this floor the variants render different pictures.
-AGREEMENT_FLOOR_DB = 40.0
+# The variants' reference frames use the same seed and sampler, so they share their samples and differ
+# by floating-point detail only (82.8 dB apart on an H200 node); independent noise alone would put two
+# 1024-spp frames ~45 dB apart. Below this floor the variants render different pictures (no cast shadows
+# on cuda_ad_rgb gave 23.3 dB).
+AGREEMENT_FLOOR_DB = 60.0
+# Identical frames have an infinite PSNR; the JSON records this cap instead (as lightcrafter.evaluation does).
+PSNR_CAP_DB = 100.0
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    return round(min(display_psnr_db(a, b), PSNR_CAP_DB), 3)
 
 
 def _worker(variant: str, conn, a: dict) -> None:
@@ -78,17 +87,21 @@ def _worker(variant: str, conn, a: dict) -> None:
         return
     while True:
         msg = conn.recv()
-        if msg[0] == "time":
-            t0 = time.perf_counter()
-            img = r.render(view)
-            dt = time.perf_counter() - t0
-            conn.send(("ok", dt, bool(np.isfinite(img).all())))
-        elif msg[0] == "image":
-            r.settings = RenderSettings(**{**settings.__dict__, "spp": msg[1], "seed": msg[2]})
-            img = np.asarray(r.render(view), dtype=np.float32)
-            r.settings = settings
-            conn.send(("ok", img))
-        else:
+        try:
+            if msg[0] == "time":
+                t0 = time.perf_counter()
+                img = r.render(view)
+                dt = time.perf_counter() - t0
+                conn.send(("ok", dt, bool(np.isfinite(img).all())))
+            elif msg[0] == "image":
+                r.settings = RenderSettings(**{**settings.__dict__, "spp": msg[1], "seed": msg[2]})
+                img = np.asarray(r.render(view), dtype=np.float32)
+                r.settings = settings
+                conn.send(("ok", img))
+            else:
+                return
+        except Exception as exc:  # noqa: BLE001 - the parent stops with this reason
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
             return
 
 
@@ -97,43 +110,68 @@ def _summary(xs: list[float], nd: int = 4) -> dict:
             "n": len(xs)}
 
 
-def run(a: argparse.Namespace) -> dict:
+def _receive(p, conn, timeout_s: float) -> tuple:
+    """The worker's next message, or ("error", why) when it died or did not answer in ``timeout_s``."""
+    if not conn.poll(timeout_s):
+        return ("error", f"no answer in {timeout_s:.0f} s (worker {'alive' if p.is_alive() else 'exited'})")
+    try:
+        return conn.recv()
+    except EOFError:
+        return ("error", f"the worker exited (code {p.exitcode})")
+
+
+def _answer(v: str, p, conn, timeout_s: float) -> tuple:
+    """:func:`_receive`, where an error stops the benchmark with one line naming the variant."""
+    msg = _receive(p, conn, timeout_s)
+    if msg[0] == "error":
+        raise SystemExit(f"proxy_device: {v}: {msg[1]}")
+    return msg
+
+
+def run(a: argparse.Namespace, other_ref: np.ndarray | None = None) -> dict:
     ctx = mp.get_context("spawn")
     params = {k: getattr(a, k) for k in ("width", "height", "spp", "threads", "hdri")}
-    workers, not_run, warm = {}, {}, {}
-    for v in a.variants:  # started one at a time: each warm-up compiles with all threads
-        parent, child = ctx.Pipe()
-        p = ctx.Process(target=_worker, args=(v, child, params), daemon=True)
-        p.start()
-        kind, payload = parent.recv() if parent.poll(a.start_timeout) else ("error", "no answer in time")
-        if kind == "ready":
-            workers[v], warm[v] = (p, parent), payload["warmup_seconds"]
-            print(f"{v}: ready (warm-up {payload['warmup_seconds']} s)", flush=True)
-        else:
-            not_run[v] = payload
-            print(f"{v}: not run: {payload}", flush=True)
-            p.join(5)
-    if not workers:
-        raise SystemExit("proxy_device: no Mitsuba variant could render here: "
-                         + "; ".join(f"{k}: {v}" for k, v in not_run.items()))
+    workers, not_run, warm, procs = {}, {}, {}, []
+    try:
+        for v in a.variants:  # started one at a time: each warm-up compiles with all threads
+            parent, child = ctx.Pipe()
+            p = ctx.Process(target=_worker, args=(v, child, params), daemon=True)
+            p.start()
+            procs.append(p)
+            child.close()  # the worker holds the only other end: its exit is an EOF here, not a hang
+            kind, payload = _receive(p, parent, a.start_timeout)
+            if kind == "ready":
+                workers[v], warm[v] = (p, parent), payload["warmup_seconds"]
+                print(f"{v}: ready (warm-up {payload['warmup_seconds']} s)", flush=True)
+            else:
+                not_run[v] = payload
+                print(f"{v}: not run: {payload}", flush=True)
+                p.terminate()
+        if not workers:
+            raise SystemExit("proxy_device: no Mitsuba variant could render here: "
+                             + "; ".join(f"{k}: {v}" for k, v in not_run.items()))
 
-    seconds = {v: [] for v in workers}
-    finite = {v: True for v in workers}
-    for _ in range(a.repeats):  # interleaved: A, B, A, B, ...
-        for v, (_, conn) in workers.items():
-            conn.send(("time",))
-            _, dt, ok = conn.recv()
-            seconds[v].append(dt)
-            finite[v] &= ok
-    images, refs = {}, {}
-    for v, (_, conn) in workers.items():
-        conn.send(("image", a.spp, 1))
-        images[v] = conn.recv()[1]
-        conn.send(("image", a.ref_spp, 12345))
-        refs[v] = conn.recv()[1]
-        conn.send(("stop",))
-    for p, _ in workers.values():
-        p.join(30)
+        timeout_s = a.start_timeout
+        seconds = {v: [] for v in workers}
+        finite = {v: True for v in workers}
+        for _ in range(a.repeats):  # interleaved: A, B, A, B, ...
+            for v, (p, conn) in workers.items():
+                conn.send(("time",))
+                _, dt, ok = _answer(v, p, conn, timeout_s)
+                seconds[v].append(dt)
+                finite[v] &= ok
+        images, refs = {}, {}
+        for v, (p, conn) in workers.items():
+            conn.send(("image", a.spp, 1))
+            images[v] = _answer(v, p, conn, timeout_s)[1]
+            conn.send(("image", a.ref_spp, 12345))
+            refs[v] = _answer(v, p, conn, timeout_s)[1]
+            conn.send(("stop",))
+    finally:
+        for p in procs:
+            p.join(10)
+            if p.is_alive():
+                p.terminate()
 
     names = list(workers)
     per_variant = {}
@@ -142,19 +180,14 @@ def run(a: argparse.Namespace) -> dict:
             "seconds_per_frame": _summary(seconds[v]),
             "warmup_seconds": warm[v],
             "all_finite": finite[v] and bool(np.isfinite(images[v]).all() and np.isfinite(refs[v]).all()),
-            "psnr_vs_own_reference_db": round(display_psnr_db(images[v], refs[v]), 3),
+            "psnr_vs_own_reference_db": _psnr(images[v], refs[v]),
         }
     base = names[0]
     ratios = {f"{base}/{v}": _summary([x / y for x, y in zip(seconds[base], seconds[v])], 3) for v in names[1:]}
-    agreement = {f"{x}_vs_{y}": round(display_psnr_db(refs[y], refs[x]), 3)
-                 for i, x in enumerate(names) for y in names[i + 1:]}
-    if a.compare_ref:
-        other = np.load(a.compare_ref)
-        if other.shape != refs[names[0]].shape:
-            raise SystemExit(f"proxy_device: --compare-ref {a.compare_ref}: a {other.shape} frame, this run renders "
-                             f"{refs[names[0]].shape}; pass the --width/--height it was saved with")
+    agreement = {f"{x}_vs_{y}": _psnr(refs[y], refs[x]) for i, x in enumerate(names) for y in names[i + 1:]}
+    if other_ref is not None:
         for v in names:
-            agreement[f"{v}_vs_{Path(a.compare_ref).name}"] = round(display_psnr_db(refs[v], other), 3)
+            agreement[f"{v}_vs_{Path(a.compare_ref).name}"] = _psnr(refs[v], other_ref)
     if a.save_ref:
         Path(a.save_ref).mkdir(parents=True, exist_ok=True)
         for v in names:
@@ -163,14 +196,14 @@ def run(a: argparse.Namespace) -> dict:
             os.replace(tmp, Path(a.save_ref) / f"{v}_ref.npy")
     return {
         "name": "proxy_device",
-        "machine": {"cores": os.cpu_count(), "platform": platform.platform(), "llvm_threads": a.threads,
+        "machine": {"cores": len(os.sched_getaffinity(0)), "platform": platform.platform(), "llvm_threads": a.threads,
                     "python": platform.python_version()},
         "scene": f"proxy_spp's 4 spheres on a ground, {a.hdri} rotated 0.5 rad, visibility='frame'",
         "resolution": {"width": a.width, "height": a.height}, "spp": a.spp, "reference_spp": a.ref_spp,
         "repeats": a.repeats, "order": "interleaved: " + ", ".join(names) + ", ... (one timed render each)",
         "variants": per_variant,
         "speed_ratio": {"definition": "first variant's seconds / the other's, per interleaved pair", **ratios},
-        "reference_agreement_psnr_db": agreement,
+        "reference_agreement_psnr_db": agreement, "psnr_cap_db": PSNR_CAP_DB,
         "references_agree": {k: bool(v >= AGREEMENT_FLOOR_DB) for k, v in agreement.items()},
         "agreement_floor_db": AGREEMENT_FLOOR_DB,
         "not_run": not_run,
@@ -186,9 +219,11 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=None, help="default: the default config's proxy.spp")
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--threads", type=int, default=os.cpu_count(), help="LLVM variant's CPU threads")
+    ap.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)),
+                    help="LLVM variant's CPU threads (default: the CPUs this process may use)")
     ap.add_argument("--hdri", default="builtin:forest.exr")
-    ap.add_argument("--start-timeout", type=float, default=600.0, help="seconds a worker may take to warm up")
+    ap.add_argument("--start-timeout", type=float, default=240.0,
+                    help="seconds a worker may take to warm up, or to answer one request")
     ap.add_argument("--save-ref", default=None, help="folder for each variant's reference frame (.npy)")
     ap.add_argument("--compare-ref", default=None, help="a reference frame (.npy) saved by --save-ref elsewhere")
     a = ap.parse_args()
@@ -198,7 +233,17 @@ def main() -> None:
         a.spp = int(validate(raw_config())["proxy"]["spp"])
     if a.repeats < 1:
         raise SystemExit(f"proxy_device: --repeats {a.repeats}: needs at least one timed render per variant")
-    result = run(a)
+    other = None
+    if a.compare_ref:  # checked before rendering: a wrong path or size costs nothing
+        try:
+            other = np.load(a.compare_ref)
+        except (OSError, ValueError) as exc:
+            raise SystemExit(f"proxy_device: --compare-ref {a.compare_ref}: cannot read it ({exc}); pass a frame "
+                             "saved by --save-ref") from None
+        if other.shape != (a.height, a.width, 3):
+            raise SystemExit(f"proxy_device: --compare-ref {a.compare_ref}: a {other.shape} frame, this run renders "
+                             f"{(a.height, a.width, 3)}; pass the --width/--height it was saved with")
+    result = run(a, other)
     io.write_json(a.out, result)
     for v, r in result["variants"].items():
         s = r["seconds_per_frame"]

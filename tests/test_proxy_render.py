@@ -243,7 +243,7 @@ def test_device_benchmark_interleaves_the_variants_it_can_run_and_names_the_rest
     common = [sys.executable, str(root / "benchmarks" / "proxy_device.py"), "--width", "48", "--height", "32",
               "--repeats", "3", "--ref-spp", "32", "--threads", "2"]
     r = subprocess.run(common + ["--variants", "llvm_ad_rgb", "cuda_ad_rgb", "--save-ref", str(tmp_path / "ref"),
-                                 "--out", str(tmp_path / "a.json")], capture_output=True, text=True, cwd=root)
+                                 "--out", str(tmp_path / "a.json")], capture_output=True, text=True, cwd=root, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     a = json.loads((tmp_path / "a.json").read_text())
     llvm = a["variants"]["llvm_ad_rgb"]
@@ -254,13 +254,19 @@ def test_device_benchmark_interleaves_the_variants_it_can_run_and_names_the_rest
     assert (tmp_path / "ref" / "llvm_ad_rgb_ref.npy").is_file()
 
     r = subprocess.run(common + ["--variants", "llvm_ad_rgb", "--compare-ref", str(tmp_path / "ref" / "llvm_ad_rgb_ref.npy"),
-                                 "--out", str(tmp_path / "b.json")], capture_output=True, text=True, cwd=root)
+                                 "--out", str(tmp_path / "b.json")], capture_output=True, text=True, cwd=root, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     b = json.loads((tmp_path / "b.json").read_text())
     assert b["references_agree"] == {"llvm_ad_rgb_vs_llvm_ad_rgb_ref.npy": True}
-    assert b["reference_agreement_psnr_db"]["llvm_ad_rgb_vs_llvm_ad_rgb_ref.npy"] > 60
+    assert b["reference_agreement_psnr_db"]["llvm_ad_rgb_vs_llvm_ad_rgb_ref.npy"] == b["psnr_cap_db"]  # identical
+    assert "Infinity" not in (tmp_path / "b.json").read_text()  # strict JSON
 
     r = subprocess.run(common[:2] + ["--variants", "no_such_variant", "--out", str(tmp_path / "c.json")],
-                       capture_output=True, text=True, cwd=root)
+                       capture_output=True, text=True, cwd=root, timeout=600)
     assert r.returncode != 0 and "no Mitsuba variant could render here" in r.stderr.splitlines()[-1]
     assert not (tmp_path / "c.json").exists()
+    # a frame of another size is refused before anything renders
+    r = subprocess.run(common + ["--width", "64", "--compare-ref", str(tmp_path / "ref" / "llvm_ad_rgb_ref.npy"),
+                                 "--out", str(tmp_path / "d.json")], capture_output=True, text=True, cwd=root, timeout=600)
+    assert r.returncode != 0 and "pass the --width/--height it was saved with" in r.stderr.splitlines()[-1]
+    assert "ready" not in r.stdout
