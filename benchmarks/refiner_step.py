@@ -5,12 +5,12 @@ No weights can be downloaded, so the step runs on a random checkpoint of the rel
 CogVideoX's defaults, a one-layer T5 at the text width) and on two synthetic 49-frame 720x480 pairs in
 memory (lightcrafter.refiner.toy). The ``paper`` preset trains through the workflow's own
 ``lightcrafter.refiner.training.train``: fp32 master weights, bf16 autocast, gradient checkpointing,
-``grad_accum`` micro-batches, each proxy VAE-encoded (sliced, tiled) in the step, the target latents
-cached on the GPU, AdamW. Checkpoint writes are skipped (at 5B one is ~67 GB: fp32 weights and two
+``grad_accum`` micro-batches, each proxy VAE-encoded (sliced, tiled) in the step, each target encoded
+once and cached in CPU memory, AdamW. Checkpoint writes are skipped (at 5B one is ~67 GB: fp32 weights and two
 AdamW moments); everything else is the job's step.
 
-Reported: parameters, seconds of each optimizer step (the first includes the target-latent cache fill
-and kernel selection; the median is over the others), peak CUDA memory allocated and reserved (GiB),
+Reported: parameters, seconds of each optimizer step (the first includes the kernels' first use and
+the first target encodings; the median is over the others), peak CUDA memory allocated and reserved (GiB),
 and what ``profiles/slurm`` should ask for. ``--size tiny`` runs the same path on the rehearsal's tiny
 checkpoint (48x32), as the CPU test does.
 
@@ -23,6 +23,8 @@ import argparse
 import math
 import os
 import platform
+import shutil
+import signal
 import statistics
 import sys
 import tempfile
@@ -62,15 +64,12 @@ def main() -> None:
     ap.add_argument("--size", choices=sorted(SIZES), default="full")
     ap.add_argument("--device", choices=["cpu", "cuda"], default="cuda")
     ap.add_argument("--steps", type=int, default=3, help="optimizer steps (each of the preset's grad_accum micro-batches)")
-    ap.add_argument("--work", default=None, help="folder for the checkpoint (default: a temporary one; ~11 GB at full size)")
+    ap.add_argument("--work", default=None, help="folder for the checkpoint (~11 GB at full size) and the run; its model/ and refiner/ are removed "
+                    "afterwards (default: a temporary folder)")
     a = ap.parse_args()
     if a.steps < 2:
         raise SystemExit(f"refiner_step: --steps {a.steps}: needs at least 2 (the first step is reported apart)")
     import torch
-
-    import lightcrafter.refiner.training as training
-    from lightcrafter.refiner import resolve_config
-    from lightcrafter.refiner.standin import write_tiny_checkpoint
 
     size = SIZES[a.size]
     cuda = a.device == "cuda"
@@ -78,6 +77,27 @@ def main() -> None:
         raise SystemExit(f"refiner_step: --device cuda: torch {torch.__version__} sees no CUDA GPU; run it on a GPU node")
     work_ctx = tempfile.TemporaryDirectory() if a.work is None else None
     work = Path(a.work or work_ctx.name)
+    # a killed run (the GPU check's timeout sends SIGTERM) still removes the ~11 GB checkpoint
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(f"refiner_step: stopped by signal {signum}"))
+    try:
+        result = _measure(a, torch, size, cuda, work)
+    finally:
+        if work_ctx is not None:
+            work_ctx.cleanup()
+        else:
+            shutil.rmtree(work / "model", ignore_errors=True)
+            shutil.rmtree(work / "refiner", ignore_errors=True)
+    io.write_json(a.out, result)
+    print({k: result[k] for k in ("transformer_parameters", "step_seconds", "peak_cuda_allocated_gib",
+                                  "peak_cuda_reserved_gib", "checkpoint_write_seconds", "train_call_seconds")})
+    print(f"wrote {a.out}")
+
+
+def _measure(a, torch, size: dict, cuda: bool, work: Path) -> dict:
+    import lightcrafter.refiner.training as training
+    from lightcrafter.refiner import resolve_config
+    from lightcrafter.refiner.standin import write_tiny_checkpoint
+
     t0 = time.perf_counter()
     model_dir = write_tiny_checkpoint(work / "model", height_px=size["height"], width_px=size["width"],
                                       frames=size["frames"], full_size=a.size == "full", device=a.device)
@@ -87,7 +107,8 @@ def main() -> None:
     cfg = resolve_config({"preset": "paper", "device": a.device, "model": {"model_path": str(model_dir)},
                           "train": {"max_steps": a.steps + 1, "checkpoint_every": 10**9, "num_workers": 0}})
     training.save_checkpoint = lambda path, state: None  # the step, not its 67 GB write (module docstring)
-    if cuda:
+    if cuda:  # the checkpoint's initialisation is not counted
+        torch.cuda.empty_cache()
         torch.cuda.reset_peak_memory_stats()
     t0 = time.perf_counter()
     res = training.train(cfg, ds, work / "refiner", stop_after=a.steps, progress=False)
@@ -119,12 +140,7 @@ def main() -> None:
         "peak_cuda_allocated_gib": round(peak, 2) if peak is not None else None,
         "peak_cuda_reserved_gib": round(reserved, 2) if reserved is not None else None,
     }
-    io.write_json(a.out, result)
-    print({k: result[k] for k in ("transformer_parameters", "step_seconds", "peak_cuda_allocated_gib",
-                                  "peak_cuda_reserved_gib", "checkpoint_write_seconds", "train_call_seconds")})
-    print(f"wrote {a.out}")
-    if work_ctx is not None:
-        work_ctx.cleanup()
+    return result
 
 
 if __name__ == "__main__":

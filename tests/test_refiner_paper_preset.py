@@ -283,7 +283,7 @@ def test_training_step_benchmark_runs_the_paper_preset_and_reports_each_step(tmp
     out = tmp_path / "step.json"
     r = subprocess.run([sys.executable, str(root / "benchmarks" / "refiner_step.py"), "--size", "tiny", "--device", "cpu",
                         "--steps", "2", "--work", str(tmp_path / "w"), "--out", str(out)],
-                       capture_output=True, text=True, cwd=root)
+                       capture_output=True, text=True, cwd=root, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
     res = json.loads(out.read_text())
     assert len(res["step_seconds"]) == 2 and all(s > 0 for s in res["step_seconds"])
@@ -293,5 +293,6 @@ def test_training_step_benchmark_runs_the_paper_preset_and_reports_each_step(tmp
     assert 1e4 < res["transformer_parameters"] < 1e5
     assert not list((tmp_path / "w" / "refiner").rglob("*.pt"))
     r = subprocess.run([sys.executable, str(root / "benchmarks" / "refiner_step.py"), "--size", "tiny", "--device", "cpu",
-                        "--steps", "1", "--out", str(tmp_path / "x.json")], capture_output=True, text=True, cwd=root)
+                        "--steps", "1", "--out", str(tmp_path / "x.json")], capture_output=True, text=True, cwd=root,
+                       timeout=300)
     assert r.returncode != 0 and "--steps 1" in r.stderr.splitlines()[-1]

@@ -52,7 +52,8 @@ def write_tiny_checkpoint(root, *, height_px: int = 32, width_px: int = 48, fram
     """Write the stand-in checkpoint to ``root`` (module docstring); returns ``root``.
 
     ``full_size``: the transformer at CogVideoX-5B-I2V's widths (COGVIDEOX_5B_WIDTHS, bf16 like the release,
-    ~11 GB) and the VAE at diffusers' AutoencoderKLCogVideoX defaults (CogVideoX's VAE), still random: for
+    ~11 GB) and the VAE at diffusers' AutoencoderKLCogVideoX defaults (CogVideoX's VAE) with 5B's latent
+    scaling factor 0.7, still random: for
     measuring memory and seconds of the paper preset at full size (benchmarks/refiner_step.py). The T5
     encoder stays one layer, at the transformer's text width. ``device``: where the weights are
     initialised (``cuda`` makes the 5B initialisation take seconds instead of minutes)."""
@@ -75,7 +76,8 @@ def write_tiny_checkpoint(root, *, height_px: int = 32, width_px: int = 48, fram
         transformer = CogVideoXTransformer3DModel(**kwargs)
         if full_size:
             transformer = transformer.to(torch.bfloat16)
-            vae = AutoencoderKLCogVideoX(latent_channels=16, temporal_compression_ratio=4).to(torch.bfloat16)
+            vae = AutoencoderKLCogVideoX(latent_channels=16, temporal_compression_ratio=4,
+                                         scaling_factor=0.7).to(torch.bfloat16)  # 5B's latent scale
         else:
             vae = AutoencoderKLCogVideoX(
                 in_channels=3, out_channels=3, latent_channels=16, block_out_channels=(8, 8, 8, 8),

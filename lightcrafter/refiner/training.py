@@ -187,7 +187,8 @@ def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
 def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True,
           objective: str = "diffusion", snapshot_steps=(), final_name: str = "model.pt") -> dict:
     """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float,
-    "rank": this process's data-parallel rank (0 alone writes files)}.
+    "step_seconds": [wall seconds of each optimizer step of this call], "rank": this process's
+    data-parallel rank (0 alone writes files)}.
 
     ``dataset[i]`` -> {"pair_id", "proxy", "target"} with (3, N, H, W) tensors in [-1, 1].
     ``stop_after`` stops after that many optimizer steps of THIS call (simulates a killed job;
