@@ -39,6 +39,10 @@ def main() -> int:
     sys.path.insert(0, str(REPO))
     only = [s for s in os.environ.get("ONLY", "").split(",") if s]
     names = [n for n in ORDER if (REPO / "benchmarks" / f"{n}.py").is_file() and (not only or n in only)]
+    for n in only:
+        if n not in ORDER:
+            print(f"ONLY={n}: " + (f"not run by make bench ({NOT_IN_BENCH[n]})" if n in NOT_IN_BENCH
+                                   else f"no such benchmark; use one of {', '.join(ORDER)}"), file=sys.stderr)
     failed, ran = [], []
     for name in names:
         t_pipe = 0.0

@@ -17,13 +17,16 @@ cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
 OUT=${OUT:-results/bench/gpu_check}
 mkdir -p "$OUT"
+# a step that fails must not leave the previous run's result to be reported as this run's
+rm -rf "$OUT/rehearsal" "$OUT/mitsuba.json" "$OUT/refiner_step.json" "$OUT/cycles_device.json" "$OUT/refiner_step_work"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader > "$OUT/gpu.txt" || echo "no nvidia-smi" > "$OUT/gpu.txt"
 "$PY" scripts/rehearse_refiner.py --device cuda --out "$OUT/rehearsal" > "$OUT/rehearsal.log" 2>&1 || echo "rehearsal failed: $OUT/rehearsal.log"
-timeout 300 "$PY" benchmarks/proxy_device.py --repeats 5 --out "$OUT/mitsuba.json" --save-ref "$OUT/mitsuba_ref" \
+timeout 300 "$PY" benchmarks/proxy_device.py --repeats 5 --start-timeout 120 --out "$OUT/mitsuba.json" --save-ref "$OUT/mitsuba_ref" \
   ${COMPARE_REF:+--compare-ref "$COMPARE_REF"} ${HDRI:+--hdri "$HDRI"} > "$OUT/mitsuba.log" 2>&1 || echo "mitsuba failed: $OUT/mitsuba.log"
 if [ -z "${SKIP_FULL_STEP:-}" ]; then
   timeout 420 "$PY" benchmarks/refiner_step.py --size full --device cuda --steps 3 --out "$OUT/refiner_step.json" \
-    > "$OUT/refiner_step.log" 2>&1 || echo "refiner_step failed: $OUT/refiner_step.log"
+    --work "$OUT/refiner_step_work" > "$OUT/refiner_step.log" 2>&1 || echo "refiner_step failed: $OUT/refiner_step.log"
+  rm -rf "$OUT/refiner_step_work"
 else
   echo '{"not_run": "skipped: SKIP_FULL_STEP is set"}' > "$OUT/refiner_step.json"
 fi
