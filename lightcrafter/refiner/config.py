@@ -289,9 +289,10 @@ PRESETS: dict[str, dict] = {
             "vae_tiling": True,
             "transformer": None,  # read from the checkpoint
         },
-        # 48 h of training (the paper) as optimizer steps: 2,000 at ~83 s per step on one A6000 (derivation in
-        # docs/paper_numbers.md; scale by the GPU count under data parallelism)
-        "train": {"lr": 1e-5, "warmup_steps": 0, "latent_window": 13, "max_steps": 2000, "checkpoint_every": 200,
+        # 48 h of training (the paper) as optimizer steps: 7,500 at the 23.1 s per step measured on one H200,
+        # the smallest single GPU the full fine-tune fits (derivation in docs/paper_numbers.md; scale by the
+        # GPU count under data parallelism)
+        "train": {"lr": 1e-5, "warmup_steps": 0, "latent_window": 13, "max_steps": 7500, "checkpoint_every": 200,
                   "num_workers": 4},
         "infer": {"window": 13, "overlap": 3, "sampler": "dpm"},  # paper: "full DPM solver", 50 steps
         "data": {"cache_pixels": False},
