@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from lightcrafter import io  # noqa: E402
+from lightcrafter.evaluation import PSNR_CAP_DB  # noqa: E402
 from lightcrafter.metrics import display_psnr_db  # noqa: E402
 
 # The variants' reference frames use the same seed and sampler, so they share their samples and differ
@@ -48,11 +49,10 @@ from lightcrafter.metrics import display_psnr_db  # noqa: E402
 # 1024-spp frames ~45 dB apart. Below this floor the variants render different pictures (no cast shadows
 # on cuda_ad_rgb gave 23.3 dB).
 AGREEMENT_FLOOR_DB = 60.0
-# Identical frames have an infinite PSNR; the JSON records this cap instead (as lightcrafter.evaluation does).
-PSNR_CAP_DB = 100.0
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """Display PSNR (dB) capped at the evaluation's PSNR_CAP_DB: identical frames would be infinite."""
     return round(min(display_psnr_db(a, b), PSNR_CAP_DB), 3)
 
 
