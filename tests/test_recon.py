@@ -231,6 +231,34 @@ def test_shading_ratio_albedo_keeps_the_inputs_colour_and_level():
         GBufferNet([8, 16], "ratio")
 
 
+def test_direct_colour_head_tells_a_pink_ground_from_a_grey_one():
+    """Two frames of one uniform surface under the same light, pink (albedo 0.6, 0.35, 0.35) and grey (0.4):
+    the direct head's group norms normalise a uniform colour away, so after training on both it gives them
+    one albedo (each off by about half their difference); direct_colour, whose head sees the input's colour,
+    fits both."""
+    from lightcrafter.recon import estimator as est
+
+    h, w = 16, 24
+    frames = []
+    for alb in ((0.6, 0.35, 0.35), (0.4, 0.4, 0.4)):
+        a = np.broadcast_to(np.float32(alb), (h, w, 3)).copy()
+        rgb = io.linear_to_display(a * np.float32(0.7))  # a lit surface: shading 0.7 (scenes.white_radiance)
+        b = io.Buffers(depth=np.full((h, w), 4.0, np.float32), normal=np.broadcast_to(np.float32([0, 0, 1]), (h, w, 3)),
+                       albedo=a, roughness=np.full((h, w), 0.5, np.float32), metallic=np.zeros((h, w), np.float32),
+                       mask=np.ones((h, w), np.float32))
+        frames.append((rgb, b, np.eye(4)))
+    samples = [est.sample_from(rgb, b, c2w) for rgb, b, c2w in frames]
+    err = {}
+    for head in ("direct", "direct_colour"):
+        cfg = est.EstimatorConfig(widths=[8, 16], steps=150, batch=2, crop=None, lr=1e-2, eval_every=150,
+                                  keep_best=False, threads=1, albedo_head=head)
+        model, _ = est.train_estimator(samples, [], cfg, log=lambda m: None)
+        pred = est.predict(model, np.stack([f[0] for f in frames]))["albedo"]
+        err[head] = max(float(np.abs(pred[i] - f[1].albedo).mean()) for i, f in enumerate(frames))
+    assert err["direct"] > 0.04, err  # half the mean channel difference is 0.05
+    assert err["direct_colour"] < 0.02, err
+
+
 def test_shading_ratio_albedo_is_pulled_down_where_it_clips():
     """Where input / S exceeds 1 the albedo is 1 and its loss still has a gradient on S, so an over-bright
     estimate can fall below 1 again."""

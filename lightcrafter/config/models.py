@@ -251,9 +251,10 @@ class Estimator(Section):
                                          "scaled by 2^u EV, u uniform in [-augment_ev, augment_ev] (display values "
                                          "re-encoded; targets unchanged), so the estimator does not read brightness "
                                          "as albedo; 0 = off")
-    albedo_head: Literal["direct", "shading_ratio"] = Field(
+    albedo_head: Literal["direct", "direct_colour", "shading_ratio"] = Field(
         "direct", description="direct: albedo is a sigmoid of the network's features, which its group norms make blind "
-        "to the frame's absolute colour and brightness; shading_ratio: the network predicts the log of the per-channel "
+        "to the frame's absolute colour and brightness; direct_colour: as direct, but the output head also sees the "
+        "input's own colour (not normalised) and a learned linear map of the frame's mean colour; shading_ratio: the network predicts the log of the per-channel "
         "shading S (its colour from the frame's mean colour through a learned linear map) and albedo = linear input / "
         "S (clipped to 1), so albedo keeps the input's colour and level (scenes are exposure-normalised, "
         "scenes.white_radiance)")

@@ -87,15 +87,18 @@ class GBufferNet(nn.Module):
     """U-Net over [RGB, x, y] -> raw output channels of :data:`OUTPUT_CHANNELS`.
 
     ``albedo_head`` (config recon.estimator.albedo_head): ``direct``, albedo = sigmoid of the head's three
-    albedo channels; ``shading_ratio``, log S = those channels + :data:`SHADING_LOG_OFFSET` + a learned linear
+    albedo channels; ``direct_colour``, the same, but the 1x1 output head also takes the input RGB itself
+    (which the group norms of the U-Net normalise away over the frame: a pink ground under white light and a grey
+    one under pink light look alike to it) and the albedo channels get a learned linear map of the frame's
+    :func:`log_chroma`; ``shading_ratio``, log S = those channels + :data:`SHADING_LOG_OFFSET` + a learned linear
     map of the frame's :func:`log_chroma` (the light's colour, which the group norms hide from the U-Net), and
     albedo = min(linear input / S, 1) per channel, with the gradient of the ratio kept where it clips so that
     an over-bright estimate is still pulled down."""
 
     def __init__(self, widths: list[int], albedo_head: str = "direct"):
         super().__init__()
-        if albedo_head not in ("direct", "shading_ratio"):
-            raise ValueError(f"albedo_head {albedo_head!r}: expected direct or shading_ratio")
+        if albedo_head not in ("direct", "direct_colour", "shading_ratio"):
+            raise ValueError(f"albedo_head {albedo_head!r}: expected direct, direct_colour or shading_ratio")
         self.albedo_head = albedo_head
         self.widths = list(widths)
         self.down = nn.ModuleList()
@@ -106,8 +109,8 @@ class GBufferNet(nn.Module):
         self.up = nn.ModuleList()
         for w_skip, w in zip(reversed(widths[:-1]), reversed(widths[1:])):
             self.up.append(_block(w + w_skip, w_skip))
-        self.head = nn.Conv2d(widths[0], sum(OUTPUT_CHANNELS.values()), 1)
-        if albedo_head == "shading_ratio":  # the light's colour, from the frame's mean colour (starts at none)
+        self.head = nn.Conv2d(widths[0] + (3 if albedo_head == "direct_colour" else 0), sum(OUTPUT_CHANNELS.values()), 1)
+        if albedo_head != "direct":  # the light's colour, from the frame's mean colour (starts at none)
             self.light_tint = nn.Linear(3, 3)
             nn.init.zeros_(self.light_tint.weight)
             nn.init.zeros_(self.light_tint.bias)
@@ -117,6 +120,8 @@ class GBufferNet(nn.Module):
             return torch.sigmoid(raw)
         if frame_chroma is None:
             frame_chroma = log_chroma(rgb)
+        if self.albedo_head == "direct_colour":
+            return torch.sigmoid(raw + self.light_tint(frame_chroma)[:, :, None, None])
         log_s = raw + SHADING_LOG_OFFSET + self.light_tint(frame_chroma)[:, :, None, None]
         ratio = srgb_decode(rgb) * torch.exp(-log_s)
         return ratio - (ratio - 1).clamp_min(0).detach()  # value min(ratio, 1), gradient of the ratio
@@ -145,7 +150,7 @@ class GBufferNet(nn.Module):
         for blk in self.up:
             skip = feats.pop()
             x = blk(torch.cat([F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False), skip], 1))
-        out = self.head(x)
+        out = self.head(torch.cat([x, rgb * 2 - 1], 1) if self.albedo_head == "direct_colour" else x)
         parts = dict(zip(OUTPUT_CHANNELS, torch.split(out, list(OUTPUT_CHANNELS.values()), dim=1)))
         return {
             "log_depth": parts["log_depth"][:, 0] + 1.5,  # centred on e^1.5 = 4.5 m, the cameras' typical distance
