@@ -128,3 +128,28 @@ def test_scene_specs_are_reproducible(e2e_run, tmp_path):
         assert (tmp_path / "results/scenes" / spec.parent.name / "scene.json").read_bytes() == spec.read_bytes()
     assert (tmp_path / "results/assets/manifest.json").read_bytes() == \
         (e2e_run / "results/assets/manifest.json").read_bytes()
+
+
+def test_estimator_weights_benchmark_scores_each_weights_file_on_train_and_test_scenes(e2e_run, tmp_path):
+    """benchmarks/estimator_weights.py on the run's ground truth: the shipped weights and the run's own
+    (trained 60 steps on its recon split) each get every error on both splits; a bad git revision is one line."""
+    import importlib.util
+    import math
+
+    from lightcrafter.io import DataError
+
+    spec = importlib.util.spec_from_file_location("estimator_weights", REPO / "benchmarks" / "estimator_weights.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    own = e2e_run / "results/recon/estimator/model.pt"
+    out = tmp_path / "ew.json"
+    assert bench.main(["--results", str(e2e_run / "results"), "--weights", "shipped=shipped", f"own={own}",
+                       "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["frames"]["train"] > 0 and res["frames"]["test"] > 0
+    got = {(p["setting"], p["series"]): p["value"] for p in res["points"]}
+    assert set(got) == {(w, f"{s}_{e}") for w in ("shipped", "own") for s in ("train", "test") for e in bench.ERRORS}
+    assert all(math.isfinite(v) for v in got.values())
+    assert got[("shipped", "test_normal_deg")] != got[("own", "test_normal_deg")]
+    with pytest.raises(DataError, match="name a commit that shipped weights"):
+        bench.main(["--results", str(e2e_run / "results"), "--weights", "old=git:no-such-rev", "--out", str(out)])

@@ -109,7 +109,8 @@ class GBufferNet(nn.Module):
         self.up = nn.ModuleList()
         for w_skip, w in zip(reversed(widths[:-1]), reversed(widths[1:])):
             self.up.append(_block(w + w_skip, w_skip))
-        self.head = nn.Conv2d(widths[0] + (3 if albedo_head == "direct_colour" else 0), sum(OUTPUT_CHANNELS.values()), 1)
+        head_in = widths[0] + (3 if albedo_head == "direct_colour" else 0)  # + the input RGB
+        self.head = nn.Conv2d(head_in, sum(OUTPUT_CHANNELS.values()), 1)
         if albedo_head != "direct":  # the light's colour, from the frame's mean colour (starts at none)
             self.light_tint = nn.Linear(3, 3)
             nn.init.zeros_(self.light_tint.weight)
