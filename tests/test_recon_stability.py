@@ -33,7 +33,8 @@ def _linear_frames() -> dict[str, np.ndarray]:
 def _models():
     torch.manual_seed(0)
     models = [("random_init", est.GBufferNet([8, 16, 24]).eval()),
-              ("random_init_shading_ratio", est.GBufferNet([8, 16, 24], "shading_ratio").eval())]
+              ("random_init_shading_ratio", est.GBufferNet([8, 16, 24], "shading_ratio").eval()),
+              ("random_init_direct_colour", est.GBufferNet([8, 16, 24], "direct_colour").eval())]
     if SHIPPED_WEIGHTS.is_file():
         models.append(("shipped", est.load(SHIPPED_WEIGHTS)))
     return models

@@ -254,8 +254,8 @@ class Estimator(Section):
     albedo_head: Literal["direct", "direct_colour", "shading_ratio"] = Field(
         "direct", description="direct: albedo is a sigmoid of the network's features, which its group norms make blind "
         "to the frame's absolute colour and brightness; direct_colour: as direct, but the output head also sees the "
-        "input's own colour (not normalised) and a learned linear map of the frame's mean colour; shading_ratio: the network predicts the log of the per-channel "
-        "shading S (its colour from the frame's mean colour through a learned linear map) and albedo = linear input / "
+        "input's own colour (not normalised) and a learned linear map of the frame's mean colour; shading_ratio: the "
+        "network predicts the log of the per-channel shading S (its colour from the frame's mean colour through a learned linear map) and albedo = linear input / "
         "S (clipped to 1), so albedo keeps the input's colour and level (scenes are exposure-normalised, "
         "scenes.white_radiance)")
 
