@@ -90,6 +90,23 @@ def test_clean_buffers_training_needs_no_reconstruction(default_config, paper_co
     assert counts == expected
 
 
+def test_the_held_out_config_has_clips_for_intervals_and_real_test_clips_from_four_videos(repo):
+    """config/held_out.yaml: enough synthetic test pairs for an interval (MIN_CLIPS_FOR_INTERVAL) and >= 4 real
+    test clips, each from its own video, none of which trains; checked on disk as a run starts (the OpenCV
+    sample videos that scripts/setup.sh installs are found)."""
+    from lightcrafter.config import effective_config
+    from lightcrafter.evaluation import MIN_CLIPS_FOR_INTERVAL
+    from lightcrafter.ingest import real_clips
+
+    cfg = effective_config([repo / "config" / "held_out.yaml"])
+    by, trajs = _split_counts(cfg)
+    assert sum(len(t["target_lights"]) for t in trajs["test"]) >= max(8, MIN_CLIPS_FOR_INTERVAL)
+    real = real_clips(cfg["real"]).values()
+    test_videos = [c["video"] for c in real if c["split"] == "test"]
+    assert len(test_videos) >= 4 and len(set(test_videos)) == len(test_videos)
+    assert not set(test_videos) & {c["video"] for c in real if c["split"] == "train"}
+
+
 def test_no_real_schedules_no_real_video_job(default_config):
     counts = job_counts(dry_run("results/refiner/no_real/model.pt").stdout)
     by, trajs = _split_counts(default_config)
