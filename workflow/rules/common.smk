@@ -579,7 +579,7 @@ def relight_clip():
     if n is None:
         from lightcrafter.ingest import read_source, resolve_source
 
-        total = read_source(resolve_source(r["video"]), [])[2]
+        total = read_source(resolve_source(r["video"], "relight.video"), [])[2]
         n = max(
             1,
             min(
