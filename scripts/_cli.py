@@ -11,17 +11,17 @@ if str(REPO) not in sys.path:
 
 
 def run(main, name: str | None = None, errors: tuple = ()) -> None:
-    """Run ``main()`` and exit with its return value (None = 0). Known input errors (DataError,
-    ConfigError, FileNotFoundError, NoGPUError, CheckpointError and ``errors``) become one line on stderr, ``<name>: <message>``
-    (``error: <message>`` without a name), and exit code 1: the one error path of every entry point."""
+    """Run ``main()`` and exit with its return value (None = 0). Known input errors (DataError, which includes
+    the refiner's CheckpointError, ConfigError, FileNotFoundError, NoGPUError and ``errors``) become one line on
+    stderr, ``<name>: <message>`` (``error: <message>`` without a name), and exit code 1: the one error path of
+    every entry point. Imports here count in every script's code fingerprint (lightcrafter.codeversion)."""
     from lightcrafter.devices import NoGPUError
     from lightcrafter.io import DataError
-    from lightcrafter.refiner.checkpoint import CheckpointError
     from lightcrafter.scenes import ConfigError
 
     try:
         rc = main()
-    except (DataError, ConfigError, FileNotFoundError, NoGPUError, CheckpointError, *errors) as exc:
+    except (DataError, ConfigError, FileNotFoundError, NoGPUError, *errors) as exc:
         print(f"{name or 'error'}: {exc}", file=sys.stderr)
         sys.exit(1)
     sys.exit(int(rc or 0))

@@ -22,13 +22,16 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..io import DataError
+
 SUBFOLDERS = ("transformer", "vae", "text_encoder", "tokenizer", "scheduler")
 VAE_SPATIAL = 8
 VAE_TEMPORAL = 4
 
 
-class CheckpointError(ValueError):
-    """A model folder the refiner cannot use (one line naming the file and the fix)."""
+class CheckpointError(DataError):
+    """A model folder the refiner cannot use (one line naming the file and the fix); a DataError, so that every
+    entry point reports it in one line (scripts/_cli.py)."""
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ rule generate_assets:
         mem_mb=2000,
         runtime=30,
     params:
-        script=script_path("generate_assets.py"),
+        **script_params("generate_assets.py"),
         out_dir=parent_dir,
         seed=SEED,
         settings=params_file(config["assets"]["procedural"]),
@@ -42,7 +42,7 @@ rule curate_assets_shard:
         mem_mb=4000,
         runtime=120,
     params:
-        script=script_path("curate_assets.py"),
+        **script_params("curate_assets.py"),
         src_dir=curation_source_dir(),
         out_dir=str(Path(L.assets_manifest()).parent / "curated"),
         shards=CURATION_JOBS,
@@ -68,6 +68,6 @@ rule curate_assets:
         mem_mb=1000,
         runtime=10,
     params:
-        script=script_path("curate_assets.py"),
+        **script_params("curate_assets.py"),
     shell:
         "python {params.script} --merge {input} --manifest {output.manifest} > {log} 2>&1"

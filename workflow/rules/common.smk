@@ -12,6 +12,7 @@ from pathlib import Path
 sys.path.insert(0, workflow.basedir)
 
 from lightcrafter import datasets as ds
+from lightcrafter.codeversion import code_fingerprint
 from lightcrafter.config import effective_config, raw_config, validate
 from lightcrafter.ingest import real_clips
 from lightcrafter.layout import Layout
@@ -144,6 +145,16 @@ def trajectory_plan(scene_id, traj_id):
 def script_path(name):
     """Absolute path of an entry point in scripts/ (rules call them with the env's python)."""
     return str(Path(workflow.basedir) / "scripts" / name)
+
+
+def script_params(name):
+    """A rule's params for its entry point: `script` (script_path) and `code`, the fingerprint of the script
+    and the library code it imports (lightcrafter.codeversion), so that editing either reruns the rule's jobs
+    (Snakemake's params trigger; its code trigger does not see shell commands)."""
+    return {
+        "script": script_path(name),
+        "code": code_fingerprint(script_path(name), workflow.basedir),
+    }
 
 
 # ----------------------------------------------------------------------------- ground truth

@@ -19,7 +19,7 @@ rule dataset:
         mem_mb=1000,
         runtime=10,
     params:
-        script=script_path("build_dataset.py"),
+        **script_params("build_dataset.py"),
         specs=variant_specs_file,
     shell:
         "python {params.script} --variant {wildcards.variant} --specs {params.specs} "
@@ -42,7 +42,7 @@ rule benchmark_pairs:
         mem_mb=1000,
         runtime=10,
     params:
-        script=script_path("build_dataset.py"),
+        **script_params("build_dataset.py"),
         specs=benchmark_specs_file,
     shell:
         "python {params.script} --benchmark {wildcards.bench} --specs {params.specs} "

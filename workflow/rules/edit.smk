@@ -21,7 +21,7 @@ rule edit_scene:
         mem_mb=3000,
         runtime=20,
     params:
-        script=script_path("edit_scene.py"),
+        **script_params("edit_scene.py"),
         clip=clip_dir_of_input,
         out_dir=parent_dir,
         traj=EDIT["traj"],
@@ -50,7 +50,7 @@ rule render_edit:
         mem_mb=3000,
         runtime=20,
     params:
-        script=script_path("render_proxy.py"),
+        **script_params("render_proxy.py"),
         clip=edit_render_clip,
         lighting=lambda wc: L.edit_lighting(wc.kind),
         out_dir=manifest_stem,
@@ -78,7 +78,7 @@ rule refine_edit:
         mem_mb=4000,
         runtime=30,
     params:
-        script=script_path("refine_clip.py"),
+        **script_params("refine_clip.py"),
         proxy=lambda wc, input: str(Path(input.proxy).with_suffix("")),
         original=lambda wc, input: str(Path(input.original).with_suffix("")),
         out_dir=manifest_stem,

@@ -19,7 +19,7 @@ rule ingest_video:
         mem_mb=2000,
         runtime=10,
     params:
-        script=script_path("ingest_video.py"),
+        **script_params("ingest_video.py"),
         clip=real_clip_file,
         out_dir=manifest_stem,
         width=config["scenes"]["width"],
@@ -49,7 +49,7 @@ rule reconstruct_real:
         mem_mb=3000,
         runtime=30,
     params:
-        script=script_path("reconstruct.py"),
+        **script_params("reconstruct.py"),
         backend=recon_backend_args(),
         estimator=estimator_arg,
         out_dir=parent_dir,
@@ -81,7 +81,7 @@ rule fit_envmap:
         mem_mb=4000,
         runtime=30,
     params:
-        script=script_path("fit_envmap.py"),
+        **script_params("fit_envmap.py"),
         clip_dir=clip_dir_of_input,
         out_dir=parent_dir,
         frames=manifest_stem_of_input,
@@ -114,7 +114,7 @@ rule relight_mit:
         mem_mb=4000,
         runtime=30,
     params:
-        script=script_path("fit_envmap.py"),
+        **script_params("fit_envmap.py"),
         clip_dir=clip_dir_of_input,
         out_dir=parent_dir,
         frames=manifest_stem_of_input,

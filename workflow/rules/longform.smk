@@ -19,7 +19,7 @@ rule longform_scene:
         mem_mb=500,
         runtime=5,
     params:
-        script=script_path("sample_scene.py"),
+        **script_params("sample_scene.py"),
         scene=LONGFORM["scene"],
         cfg=params_file(LONGFORM["config"]),
     shell:
@@ -45,7 +45,7 @@ rule longform_buffers:
         mem_mb=3000,
         runtime=60,
     params:
-        script=script_path("render_gt.py"),
+        **script_params("render_gt.py"),
         out_dir=parent_dir,
         device=config["render"]["device"],
     shell:
@@ -71,7 +71,7 @@ rule longform_rgb:
         mem_mb=3000,
         runtime=120,
     params:
-        script=script_path("render_gt.py"),
+        **script_params("render_gt.py"),
         out_dir=trajectory_dir,
         device=config["render"]["device"],
     shell:
@@ -96,7 +96,7 @@ rule longform_proxy:
         mem_mb=3000,
         runtime=30,
     params:
-        script=script_path("render_proxy.py"),
+        **script_params("render_proxy.py"),
         out_dir=manifest_stem,
         proxy=proxy_settings(),
     shell:
@@ -122,7 +122,7 @@ rule longform:
         mem_mb=4000,
         runtime=60,
     params:
-        script=script_path("longform.py"),
+        **script_params("longform.py"),
         proxy=lambda wc, input: str(Path(input.proxy).with_suffix("")),
         target=lambda wc, input: str(Path(input.target).with_suffix("")),
         out_dir=parent_dir,

@@ -25,7 +25,7 @@ rule render_proxy_gt:
         mem_mb=3000,
         runtime=30,
     params:
-        script=script_path("render_proxy.py"),
+        **script_params("render_proxy.py"),
         out_dir=manifest_stem,
         proxy=proxy_settings(),
     shell:
@@ -51,7 +51,7 @@ rule render_proxy:
         mem_mb=3000,
         runtime=30,
     params:
-        script=script_path("render_proxy.py"),
+        **script_params("render_proxy.py"),
         out_dir=manifest_stem,
         proxy=proxy_settings(),
     shell:

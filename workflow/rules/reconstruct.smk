@@ -20,7 +20,7 @@ rule train_gbuffer_estimator:
         mem_mb=4000,
         runtime=60,
     params:
-        script=script_path("train_estimator.py"),
+        **script_params("train_estimator.py"),
         cfg=params_file(dict(config["recon"]["estimator"], threads=2)),
     shell:
         "python {params.script} --clips {input.clips} --videos {input.videos} "
@@ -44,7 +44,7 @@ rule reconstruct_synthetic:
         mem_mb=3000,
         runtime=30,
     params:
-        script=script_path("reconstruct.py"),
+        **script_params("reconstruct.py"),
         backend=recon_backend_args(),
         estimator=estimator_arg,
         out_dir=parent_dir,
@@ -76,7 +76,7 @@ rule align_synthetic:
         mem_mb=2000,
         runtime=10,
     params:
-        script=script_path("align_clip.py"),
+        **script_params("align_clip.py"),
         out_dir=parent_dir,
     shell:
         "python {params.script} --est {input.est} --gt {input.gt} --out {params.out_dir} > {log} 2>&1"
@@ -98,7 +98,7 @@ rule summarize_reconstruction:
         mem_mb=2000,
         runtime=10,
     params:
-        script=script_path("summarize_recon.py"),
+        **script_params("summarize_recon.py"),
         plans=plans_file,
         inputs=inputs_file("est", "aligned", "gt", "real"),
     shell:

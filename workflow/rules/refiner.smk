@@ -15,7 +15,7 @@ rule encode_empty_prompt:
         mem_mb=48000,
         runtime=60,
     params:
-        script=script_path("encode_empty_prompt.py"),
+        **script_params("encode_empty_prompt.py"),
         cfg=lambda wildcards: params_file(refiner_model_config()),
     shell:
         "python {params.script} --config-json {params.cfg} --out {output.emb} > {log} 2>&1"
@@ -38,7 +38,7 @@ rule train_refiner:
         mem_mb=refiner_resource("mem_mb"),
         runtime=refiner_resource("runtime"),
     params:
-        script=script_path("train_refiner.py"),
+        **script_params("train_refiner.py"),
         cfg=refiner_config_file,
         out_dir=parent_dir,
         launcher=refiner_launcher(),
@@ -65,7 +65,7 @@ rule infer_refiner:
         mem_mb=refiner_resource("mem_mb"),
         runtime=refiner_resource("runtime"),
     params:
-        script=script_path("infer_refiner.py"),
+        **script_params("infer_refiner.py"),
         cfg=refiner_infer_file,
         out_dir=parent_dir,
     shell:
@@ -90,7 +90,7 @@ rule evaluate_refiner:
         mem_mb=2000,
         runtime=30,
     params:
-        script=script_path("evaluate_refiner.py"),
+        **script_params("evaluate_refiner.py"),
         exposure=config["refiner"]["data"]["exposure_ev"],
         weights=evaluation_args,
     shell:

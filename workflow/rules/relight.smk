@@ -13,7 +13,7 @@ rule relight_ingest:
     conda:
         "../../envs/recon.yaml"
     params:
-        script=script_path("ingest_video.py"),
+        **script_params("ingest_video.py"),
         clip=lambda wc: params_file(relight_clip()),
         name=lambda wc: relight_name(),
         out_dir=lambda wc, output: str(Path(output.video).with_suffix("")),
@@ -36,7 +36,7 @@ rule relight_reconstruct:
     conda:
         "../../envs/recon.yaml"
     params:
-        script=script_path("reconstruct.py"),
+        **script_params("reconstruct.py"),
         backend=recon_backend_args(),
         estimator=estimator_arg,
         out_dir=parent_dir,
@@ -65,7 +65,7 @@ rule relight_lighting:
     conda:
         "../../envs/recon.yaml"
     params:
-        script=script_path("relight_lighting.py"),
+        **script_params("relight_lighting.py"),
         settings=lambda wc: params_file(
             {
                 k: config["relight"][k]
@@ -94,7 +94,7 @@ rule relight_proxy:
         "../../envs/mitsuba.yaml"
     threads: 2
     params:
-        script=script_path("render_proxy.py"),
+        **script_params("render_proxy.py"),
         clip=clip_dir_of_input,
         out_dir=lambda wc, output: str(Path(output.proxy).with_suffix("")),
         proxy=proxy_settings(),
@@ -117,7 +117,7 @@ rule relight_refine:
         "../../envs/refiner.yaml"
     threads: refiner_threads()
     params:
-        script=script_path("refine_clip.py"),
+        **script_params("refine_clip.py"),
         proxy=lambda wc, input: str(Path(input.proxy).with_suffix("")),
         original=lambda wc, input: str(Path(input.video).with_suffix("")),
         out_dir=lambda wc, output: str(Path(output.relit).with_suffix("")),

@@ -20,7 +20,7 @@ rule render_buffers:
         mem_mb=3000,
         runtime=60,
     params:
-        script=script_path("render_gt.py"),
+        **script_params("render_gt.py"),
         out_dir=trajectory_dir,
         device=config["render"]["device"],
     shell:
@@ -51,7 +51,7 @@ rule render_rgb:
         mem_mb=3000,
         runtime=120,
     params:
-        script=script_path("render_gt.py"),
+        **script_params("render_gt.py"),
         out_dir=trajectory_dir,
         device=config["render"]["device"],
     shell:
@@ -77,7 +77,7 @@ rule summarize_ground_truth:
         mem_mb=500,
         runtime=5,
     params:
-        script=script_path("summarize_gt.py"),
+        **script_params("summarize_gt.py"),
         gt_root=gt_root_of_inputs,
     shell:
         "python {params.script} --gt-root {params.gt_root} --specs {input.specs} "

@@ -19,7 +19,7 @@ rule run_report:
         mem_mb=2000,
         runtime=15,
     params:
-        script=script_path("build_report.py"),
+        **script_params("build_report.py"),
         results=results_root,
         cfg=params_file(
             {

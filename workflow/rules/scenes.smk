@@ -17,7 +17,7 @@ rule sample_scene:
         mem_mb=500,
         runtime=5,
     params:
-        script=script_path("sample_scene.py"),
+        **script_params("sample_scene.py"),
         cfg=params_file(
             {"seed": SEED, "scenes": config["scenes"], "render": config["render"]}
         ),

@@ -1,0 +1,151 @@
+"""Code fingerprints for the workflow's rerun triggers.
+
+The rules run their entry points as shell commands (``python scripts/X.py ...``), so Snakemake's own
+``code`` trigger, which covers ``script:`` and ``run:`` directives only, does not see them: a job whose
+script or library code changed would not rerun, and a working copy could keep products of old code
+without any sign of it. Each rule therefore passes ``code=code_fingerprint(script)`` among its params
+(``workflow/rules/common.smk: script_params``), and Snakemake's default ``params`` trigger reruns a job
+when it changes ("Params have changed since last execution").
+
+What a fingerprint covers, found by reading the code (nothing is imported or run):
+
+* the script itself and the helpers of ``scripts/`` it imports (``_cli``);
+* every ``lightcrafter`` module it imports, directly or through covered modules (a function-level
+  import counts as well), with the ``__init__.py`` of each package on the way;
+* every module of a package whose ``__init__.py`` resolves names on first use (PEP 562 ``__getattr__``,
+  as ``lightcrafter.refiner``) when a name is taken from the package itself;
+* the files beside each covered module that are not Python (the shipped estimator weights beside
+  ``lightcrafter/recon/weights/__init__.py``) and those in data folders (no Python file inside) under its
+  directory.
+
+Not followed: ``lightcrafter.config`` (what it changes reaches jobs as config values, which the workflow
+writes into the settings files the jobs read, so a changed value reruns them through those files) and
+modules loaded by a name in a string (``lightcrafter.recon.BACKENDS``: ``scripts/reconstruct.py`` imports
+both backends itself). Following the config package would tie every job to the code of every section it
+validates, so that adding a key to Phi's settings would rerun the asset curation and, through its new
+outputs, every render. Not covered: third-party packages (pinned in requirements.txt; conda envs have the ``software-env``
+trigger) and files the code opens by a path from the config (those are rule inputs). To rerun on input
+files and timestamps only, pass ``--rerun-triggers mtime input`` to Snakemake.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+from functools import lru_cache
+from pathlib import Path
+
+PACKAGE = "lightcrafter"
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _module_name(path: Path, repo: Path) -> str:
+    parts = list(path.relative_to(repo).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+NOT_FOLLOWED = (f"{PACKAGE}.config",)
+
+
+@lru_cache(maxsize=None)
+def _scan(path: Path, repo: Path, stamp: tuple[int, int]) -> tuple[frozenset[str], bool]:
+    """(names the file imports, whether it has a module ``__getattr__``).
+    For ``from a import b``: ``a`` and ``a.b`` (``b`` may be a submodule); relative imports are resolved
+    against the file's package. ``stamp`` (mtime, size) keys the cache."""
+    tree = ast.parse(path.read_bytes(), filename=str(path))
+    own = _module_name(path, repo).split(".") if path.is_relative_to(repo / PACKAGE) else []
+    package = own if path.name == "__init__.py" else own[:-1]
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                if node.level > len(package):
+                    continue
+                base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            names.add(base)
+            names.update(f"{base}.{alias.name}" for alias in node.names if alias.name != "*")
+    lazy = any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body)
+    return frozenset(n for n in names if n), lazy
+
+
+def _scan_file(path: Path, repo: Path):
+    st = path.stat()
+    return _scan(path, repo, (st.st_mtime_ns, st.st_size))
+
+
+def _module_files(name: str, repo: Path) -> list[Path]:
+    """Files that importing dotted ``name`` runs: each package's ``__init__.py`` and the module itself; for a
+    name that is not a module (a function imported from its package) those of the package."""
+    parts, files = name.split("."), []
+    for i in range(1, len(parts) + 1):
+        stem = repo.joinpath(*parts[:i])
+        if (stem / "__init__.py").is_file():
+            files.append(stem / "__init__.py")
+        elif stem.with_suffix(".py").is_file():
+            files.append(stem.with_suffix(".py"))
+            break
+        elif not stem.is_dir():  # a directory without __init__.py is a namespace package
+            break
+    return files
+
+
+def _data_files(module: Path) -> list[Path]:
+    """The other files beside a module (not Python) and in the data folders (no Python file inside) under
+    its directory, such as the shipped estimator weights."""
+    out = [f for f in module.parent.iterdir() if f.is_file() and f.suffix not in (".py", ".pyc")]
+    for sub in module.parent.iterdir():
+        if sub.is_dir() and sub.name != "__pycache__" and not any(sub.rglob("*.py")):
+            out += [f for f in sub.rglob("*") if f.is_file()]
+    return out
+
+
+def covered_files(script: str | Path, repo: str | Path = REPO) -> list[Path]:
+    """The files whose contents make up ``script``'s fingerprint (see the module docstring), sorted."""
+    repo = Path(repo).resolve()
+    script = Path(script).resolve()
+    if not script.is_file():
+        raise FileNotFoundError(f"{script}: no such script")
+    files: set[Path] = {script}
+    todo = [script]
+    while todo:
+        path = todo.pop()
+        names, _ = _scan_file(path, repo)
+        new: list[Path] = []
+        for name in names:
+            top = name.split(".")[0]
+            if any(name == n or name.startswith(n + ".") for n in NOT_FOLLOWED):
+                continue
+            if top == PACKAGE:
+                mods = _module_files(name, repo)
+                new += mods
+                parent = name.rsplit(".", 1)[0]
+                init = repo.joinpath(*parent.split(".")) / "__init__.py"
+                is_module = bool(mods) and _module_name(mods[-1], repo) == name
+                if not is_module and init.is_file() and _scan_file(init, repo)[1]:
+                    new += [f for f in init.parent.rglob("*.py") if "__pycache__" not in f.parts]
+            elif "." not in name and path.parent == script.parent and (script.parent / f"{name}.py").is_file():
+                new.append(script.parent / f"{name}.py")
+        for f in new:
+            if f not in files:
+                files.add(f)
+                if f.suffix == ".py":
+                    todo.append(f)
+                    if f.is_relative_to(repo / PACKAGE):
+                        new_data = [d for d in _data_files(f) if d not in files]
+                        files.update(new_data)
+    return sorted(files)
+
+
+def code_fingerprint(script: str | Path, repo: str | Path = REPO) -> str:
+    """16 hex digits of SHA-256 over the paths (relative to ``repo``) and bytes of :func:`covered_files`;
+    moving the checkout does not change it, editing any covered file does."""
+    repo = Path(repo).resolve()
+    h = hashlib.sha256()
+    for f in covered_files(script, repo):
+        rel = f.relative_to(repo).as_posix() if f.is_relative_to(repo) else f.name
+        h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
