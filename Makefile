@@ -3,6 +3,8 @@
 export PATH := $(CURDIR)/.venv/bin:$(PATH)
 SNAKEMAKE := snakemake
 PYTEST := pytest
+# Two workers; a module's tests and the tests of the end-to-end run are each one unit (tests/conftest.py).
+PYTEST_WORKERS := -n 2 --dist loadscope --no-loadscope-reorder
 
 .PHONY: setup run test test-fast bench lint clean
 
@@ -14,10 +16,10 @@ run: setup
 
 test:
 	bash scripts/setup.sh --test
-	$(PYTEST) -q -rs --durations=25 --junitxml=results/tests/junit.xml
+	$(PYTEST) -q -rs --durations=25 $(PYTEST_WORKERS) --junitxml=results/tests/junit.xml
 
 test-fast: setup
-	$(PYTEST) -q -m "not slow"
+	$(PYTEST) -q -m "not slow" $(PYTEST_WORKERS)
 
 bench: setup
 	.venv/bin/python benchmarks/run_all.py

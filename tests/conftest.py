@@ -61,3 +61,72 @@ def e2e_run(tmp_path_factory):
     res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=3600, env=venv_env())
     assert res.returncode == 0, res.stderr[-5000:]
     return wd
+
+
+# ----------------------------------------------------------------------------- work units for pytest-xdist
+# `make test` runs the tests on 2 workers (-n 2 --dist loadscope --no-loadscope-reorder), with the scheduler
+# below: the tests of a module form one unit (a module-scoped fixture such as the SLURM cluster or the paper
+# dry run is built once), and the tests that use the tiny end-to-end run (e2e_run, about 12 minutes on 2
+# cores) form one unit across modules, so that only one worker builds it; that unit goes first, as the
+# longest chain. (xdist's own loadgroup does not group under pytest 9: it renames test ids through an
+# attribute pytest 9 no longer reads.)
+E2E_FIXTURE = "e2e_run"
+
+
+def tests_using(fixture: str, test_dir: Path = Path(__file__).parent) -> set[str]:
+    """Node ids (without parameters) of the test functions in ``test_dir`` that request ``fixture``, directly or
+    through fixtures of the same file or conftest.py, read from the source (the xdist controller collects
+    nothing)."""
+    import ast
+
+    trees = {f: ast.parse(f.read_text()) for f in sorted(test_dir.glob("test_*.py")) + [test_dir / "conftest.py"]}
+
+    def functions(tree):
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                yield node
+
+    def args(fn):
+        return {a.arg for a in fn.args.args + fn.args.kwonlyargs}
+
+    shared = {fn.name: args(fn) for fn in functions(trees[test_dir / "conftest.py"]) if not fn.name.startswith("test_")}
+    out = set()
+    for f, tree in trees.items():
+        local = {**shared, **{fn.name: args(fn) for fn in functions(tree) if not fn.name.startswith("test_")}}
+        needs: dict[str, bool] = {}
+
+        def need(name, seen=()):
+            if name == fixture:
+                return True
+            if name not in local or name in seen:
+                return False
+            if name not in needs:
+                needs[name] = any(need(a, seen + (name,)) for a in local[name])
+            return needs[name]
+
+        for fn in functions(tree):
+            if fn.name.startswith("test_") and any(need(a) for a in args(fn)):
+                out.add(f"{test_dir.name}/{f.name}::{fn.name}")
+    return out
+
+
+def pytest_xdist_make_scheduler(config, log):
+    from xdist.scheduler import LoadScopeScheduling
+
+    e2e = tests_using(E2E_FIXTURE)
+
+    class WorkUnits(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return "e2e" if nodeid.split("[")[0] in e2e else nodeid.split("::")[0]
+
+    return WorkUnits(config, log)
+
+
+def _work_unit(item) -> str:
+    return "e2e" if E2E_FIXTURE in item.fixturenames else item.module.__name__
+
+
+def pytest_collection_modifyitems(config, items):
+    """The end-to-end unit first, then the slow modules, then the rest in collection order (the order xdist
+    sends units in when its reordering is off; without xdist, the order the tests run in)."""
+    items.sort(key=lambda it: (_work_unit(it) != "e2e", getattr(it.module, "pytestmark", None) is None))
