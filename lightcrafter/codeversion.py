@@ -13,19 +13,20 @@ What a fingerprint covers, found by reading the code (nothing is imported or run
 * every ``lightcrafter`` module it imports, directly or through covered modules (a function-level
   import counts as well), with the ``__init__.py`` of each package on the way;
 * every module of a package whose ``__init__.py`` resolves names on first use (PEP 562 ``__getattr__``,
-  as ``lightcrafter.refiner``) when a name is taken from the package itself;
-* the files beside each covered module that are not Python (the shipped estimator weights beside
-  ``lightcrafter/recon/weights/__init__.py``) and those in data folders (no Python file inside) under its
-  directory.
+  as ``lightcrafter.refiner``) when the package itself or a name from it is imported.
+
+A file counts by its syntax tree without docstrings, so that editing a comment, a docstring or the layout
+reruns nothing; a file that does not parse counts by its bytes.
 
 Not followed: ``lightcrafter.config`` (what it changes reaches jobs as config values, which the workflow
 writes into the settings files the jobs read, so a changed value reruns them through those files) and
 modules loaded by a name in a string (``lightcrafter.recon.BACKENDS``: ``scripts/reconstruct.py`` imports
 both backends itself). Following the config package would tie every job to the code of every section it
 validates, so that adding a key to Phi's settings would rerun the asset curation and, through its new
-outputs, every render. Not covered: third-party packages (pinned in requirements.txt; conda envs have the ``software-env``
-trigger) and files the code opens by a path from the config (those are rule inputs). To rerun on input
-files and timestamps only, pass ``--rerun-triggers mtime input`` to Snakemake.
+outputs, every render. Not covered: third-party packages (pinned in requirements.txt; conda envs have the
+``software-env`` trigger), data files (the shipped estimator weights are an input of the rules that read
+them) and files the code opens by a path from the config (rule inputs as well). To rerun on input files
+and timestamps only, pass ``--rerun-triggers mtime input`` to Snakemake.
 """
 
 from __future__ import annotations
@@ -48,11 +49,17 @@ NOT_FOLLOWED = (f"{PACKAGE}.config",)
 
 
 @lru_cache(maxsize=None)
-def _scan(path: Path, repo: Path, stamp: tuple[int, int]) -> tuple[frozenset[str], bool]:
-    """(names the file imports, whether it has a module ``__getattr__``).
+def _scan(path: Path, repo: Path, stamp: tuple[int, int]) -> tuple[frozenset[str], bool, bytes]:
+    """(names the file imports, whether it has a module ``__getattr__``, the content that counts).
     For ``from a import b``: ``a`` and ``a.b`` (``b`` may be a submodule); relative imports are resolved
     against the file's package. ``stamp`` (mtime, size) keys the cache."""
-    tree = ast.parse(path.read_bytes(), filename=str(path))
+    data = path.read_bytes()
+    if path.suffix != ".py":
+        return frozenset(), False, data
+    try:
+        tree = ast.parse(data, filename=str(path))
+    except (SyntaxError, ValueError):
+        return frozenset(), False, data
     own = _module_name(path, repo).split(".") if path.is_relative_to(repo / PACKAGE) else []
     package = own if path.name == "__init__.py" else own[:-1]
     names: set[str] = set()
@@ -69,7 +76,17 @@ def _scan(path: Path, repo: Path, stamp: tuple[int, int]) -> tuple[frozenset[str
             names.add(base)
             names.update(f"{base}.{alias.name}" for alias in node.names if alias.name != "*")
     lazy = any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body)
-    return frozenset(n for n in names if n), lazy
+    return frozenset(n for n in names if n), lazy, _without_docstrings(tree).encode()
+
+
+def _without_docstrings(tree: ast.Module) -> str:
+    """``ast.dump`` of a module with the docstrings of the module, its classes and functions left out."""
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+                node.body = node.body[1:] or [ast.Pass()]
+    return ast.dump(tree, include_attributes=False)
 
 
 def _scan_file(path: Path, repo: Path):
@@ -93,16 +110,6 @@ def _module_files(name: str, repo: Path) -> list[Path]:
     return files
 
 
-def _data_files(module: Path) -> list[Path]:
-    """The other files beside a module (not Python) and in the data folders (no Python file inside) under
-    its directory, such as the shipped estimator weights."""
-    out = [f for f in module.parent.iterdir() if f.is_file() and f.suffix not in (".py", ".pyc")]
-    for sub in module.parent.iterdir():
-        if sub.is_dir() and sub.name != "__pycache__" and not any(sub.rglob("*.py")):
-            out += [f for f in sub.rglob("*") if f.is_file()]
-    return out
-
-
 def covered_files(script: str | Path, repo: str | Path = REPO) -> list[Path]:
     """The files whose contents make up ``script``'s fingerprint (see the module docstring), sorted."""
     repo = Path(repo).resolve()
@@ -113,7 +120,7 @@ def covered_files(script: str | Path, repo: str | Path = REPO) -> list[Path]:
     todo = [script]
     while todo:
         path = todo.pop()
-        names, _ = _scan_file(path, repo)
+        names = _scan_file(path, repo)[0]
         new: list[Path] = []
         for name in names:
             top = name.split(".")[0]
@@ -122,10 +129,10 @@ def covered_files(script: str | Path, repo: str | Path = REPO) -> list[Path]:
             if top == PACKAGE:
                 mods = _module_files(name, repo)
                 new += mods
-                parent = name.rsplit(".", 1)[0]
-                init = repo.joinpath(*parent.split(".")) / "__init__.py"
                 is_module = bool(mods) and _module_name(mods[-1], repo) == name
-                if not is_module and init.is_file() and _scan_file(init, repo)[1]:
+                package = name if is_module else name.rsplit(".", 1)[0]
+                init = repo.joinpath(*package.split(".")) / "__init__.py"
+                if init.is_file() and _scan_file(init, repo)[1]:  # names resolved on first use: all of it
                     new += [f for f in init.parent.rglob("*.py") if "__pycache__" not in f.parts]
             elif "." not in name and path.parent == script.parent and (script.parent / f"{name}.py").is_file():
                 new.append(script.parent / f"{name}.py")
@@ -134,18 +141,16 @@ def covered_files(script: str | Path, repo: str | Path = REPO) -> list[Path]:
                 files.add(f)
                 if f.suffix == ".py":
                     todo.append(f)
-                    if f.is_relative_to(repo / PACKAGE):
-                        new_data = [d for d in _data_files(f) if d not in files]
-                        files.update(new_data)
     return sorted(files)
 
 
 def code_fingerprint(script: str | Path, repo: str | Path = REPO) -> str:
-    """16 hex digits of SHA-256 over the paths (relative to ``repo``) and bytes of :func:`covered_files`;
-    moving the checkout does not change it, editing any covered file does."""
+    """16 hex digits of SHA-256 over the paths (relative to ``repo``) and contents (syntax trees without
+    docstrings) of :func:`covered_files`; moving the checkout does not change it, editing code in any covered
+    file does."""
     repo = Path(repo).resolve()
     h = hashlib.sha256()
     for f in covered_files(script, repo):
         rel = f.relative_to(repo).as_posix() if f.is_relative_to(repo) else f.name
-        h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
+        h.update(rel.encode() + b"\0" + _scan_file(f, repo)[2] + b"\0")
     return h.hexdigest()[:16]

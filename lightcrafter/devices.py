@@ -18,12 +18,10 @@ from __future__ import annotations
 
 import os
 
+from .errors import NoGPUError  # noqa: F401  (defined there, so that scripts/_cli.py imports nothing else)
+
 DEVICES = ("auto", "cpu", "cuda")
 _GPU_ENV = ("SLURM_GPUS_ON_NODE", "SLURM_JOB_GPUS", "CUDA_VISIBLE_DEVICES")
-
-
-class NoGPUError(RuntimeError):
-    """A stage that must run on a GPU sees none."""
 
 
 def allocated_gpus() -> str | None:

@@ -38,6 +38,8 @@ from typing import Iterator
 
 import numpy as np
 
+from .errors import DataError  # noqa: F401  (defined there, so that scripts/_cli.py imports nothing else)
+
 BUFFER_CHANNELS = (
     "depth",
     "normal.X",
@@ -51,10 +53,6 @@ BUFFER_CHANNELS = (
     "mask",
 )
 RGB_CHANNELS = ("R", "G", "B")
-
-
-class DataError(ValueError):
-    """A malformed input file. The message is one line naming the file and the fix."""
 
 
 # ----------------------------------------------------------------------------- atomic writes

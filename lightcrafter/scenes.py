@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import intrinsics, opencv_c2w  # noqa: F401  (used by checks and tests)
+from .errors import ConfigError  # noqa: F401  (defined there, so that scripts/_cli.py imports nothing else)
 from .io import DataError
 
 FORMAT = "lightcrafter.scene/1"
@@ -30,10 +31,6 @@ ELEVATION_GROUPS = ("upper", "middle", "lower", "random")
 SPLITS = ("train", "test", "recon")
 PRIMITIVE_SHAPES = ("cube", "sphere", "cylinder", "cone", "torus")
 GROUND_PATTERNS = ("checker", "noise", "bricks", "voronoi")
-
-
-class ConfigError(ValueError):
-    """An impossible configuration. The message names the key and the fix."""
 
 
 def scene_ids(scfg: dict) -> list[str]:

@@ -15,9 +15,7 @@ def run(main, name: str | None = None, errors: tuple = ()) -> None:
     the refiner's CheckpointError, ConfigError, FileNotFoundError, NoGPUError and ``errors``) become one line on
     stderr, ``<name>: <message>`` (``error: <message>`` without a name), and exit code 1: the one error path of
     every entry point. Imports here count in every script's code fingerprint (lightcrafter.codeversion)."""
-    from lightcrafter.devices import NoGPUError
-    from lightcrafter.io import DataError
-    from lightcrafter.scenes import ConfigError
+    from lightcrafter.errors import ConfigError, DataError, NoGPUError
 
     try:
         rc = main()
@@ -32,7 +30,7 @@ def json_arg(text: str | None, default=None):
     settings and plans travel in files it writes, never on the command line). One-line error if bad."""
     import json
 
-    from lightcrafter.io import DataError
+    from lightcrafter.errors import DataError
 
     if text is None:
         return default
