@@ -68,52 +68,72 @@ def e2e_run(tmp_path_factory):
 # below: the tests of a module form one unit (a module-scoped fixture such as the SLURM cluster or the paper
 # dry run is built once), and the tests that use the tiny end-to-end run (e2e_run, about 12 minutes on 2
 # cores) form one unit across modules, so that only one worker builds it; that unit goes first, as the
-# longest chain. (xdist's own loadgroup does not group under pytest 9: it renames test ids through an
+# longest chain. Without xdist (`pytest`, `-p no:xdist`) the tests run in one process in the same order. (xdist's own loadgroup does not group under pytest 9: it renames test ids through an
 # attribute pytest 9 no longer reads.)
 E2E_FIXTURE = "e2e_run"
 
 
-def tests_using(fixture: str, test_dir: Path = Path(__file__).parent) -> set[str]:
-    """Node ids (without parameters) of the test functions in ``test_dir`` that request ``fixture``, directly or
-    through fixtures of the same file or conftest.py, read from the source (the xdist controller collects
-    nothing)."""
+def requesting_tests(fixture: str, test_dir: Path = Path(__file__).parent, prefix: str = "tests") -> set[str]:
+    """Node ids (``prefix/file::[Class::]test``, without parameters) of the tests in ``test_dir`` that request
+    ``fixture`` -- as an argument, through ``pytest.mark.usefixtures`` (on the test, its class or the
+    module's ``pytestmark``), or through fixtures of the same file or conftest.py that do -- read from the
+    source, since the xdist controller collects nothing. tests/test_suite_units.py checks it against what
+    pytest collects."""
     import ast
 
-    trees = {f: ast.parse(f.read_text()) for f in sorted(test_dir.glob("test_*.py")) + [test_dir / "conftest.py"]}
+    files = sorted(test_dir.glob("test_*.py"))
+    trees = {f: ast.parse(f.read_text()) for f in files + [test_dir / "conftest.py"]}
 
-    def functions(tree):
-        for node in ast.walk(tree):
-            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                yield node
+    def requested(node) -> set[str]:
+        names = {a.arg for a in node.args.args + node.args.kwonlyargs} if hasattr(node, "args") else set()
+        for dec in getattr(node, "decorator_list", []):
+            names |= usefixtures(dec)
+        return names
 
-    def args(fn):
-        return {a.arg for a in fn.args.args + fn.args.kwonlyargs}
+    def usefixtures(expr) -> set[str]:
+        out = set()
+        for call in ast.walk(expr):
+            if isinstance(call, ast.Call) and getattr(call.func, "attr", "") == "usefixtures":
+                out |= {a.value for a in call.args if isinstance(a, ast.Constant) and isinstance(a.value, str)}
+        return out
 
-    shared = {fn.name: args(fn) for fn in functions(trees[test_dir / "conftest.py"]) if not fn.name.startswith("test_")}
+    def fixtures(tree) -> dict[str, set[str]]:
+        return {fn.name: requested(fn) for fn in ast.walk(tree)
+                if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)) and not fn.name.startswith("test_")}
+
+    shared = fixtures(trees[test_dir / "conftest.py"])
     out = set()
-    for f, tree in trees.items():
-        local = {**shared, **{fn.name: args(fn) for fn in functions(tree) if not fn.name.startswith("test_")}}
-        needs: dict[str, bool] = {}
+    for f in files:
+        tree = trees[f]
+        local = {**shared, **fixtures(tree)}
+        module_marks = set().union(*(usefixtures(n.value) for n in tree.body if isinstance(n, ast.Assign)
+                                     and any(getattr(t, "id", "") == "pytestmark" for t in n.targets)))
 
-        def need(name, seen=()):
-            if name == fixture:
-                return True
-            if name not in local or name in seen:
-                return False
-            if name not in needs:
-                needs[name] = any(need(a, seen + (name,)) for a in local[name])
-            return needs[name]
+        def needs(name, seen=()) -> bool:
+            return name == fixture or (name in local and name not in seen
+                                       and any(needs(a, seen + (name,)) for a in local[name]))
 
-        for fn in functions(tree):
-            if fn.name.startswith("test_") and any(need(a) for a in args(fn)):
-                out.add(f"{test_dir.name}/{f.name}::{fn.name}")
+        def visit(body, ids: str, inherited: set[str]):
+            for node in body:
+                if isinstance(node, ast.ClassDef) and node.name.startswith("Test"):
+                    visit(node.body, f"{ids}::{node.name}", inherited | requested(node))
+                elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name.startswith("test_"):
+                    if any(needs(a) for a in requested(node) | inherited):
+                        out.add(f"{ids}::{node.name}")
+
+        visit(tree.body, f"{prefix}/{f.name}", module_marks)
     return out
 
 
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist: pytest runs without it too
 def pytest_xdist_make_scheduler(config, log):
+    """Only for ``--dist loadscope`` (what `make test` uses); other modes keep xdist's own scheduler."""
+    if config.getvalue("dist") != "loadscope":
+        return None
     from xdist.scheduler import LoadScopeScheduling
 
-    e2e = tests_using(E2E_FIXTURE)
+    tests_dir = Path(__file__).parent
+    e2e = requesting_tests(E2E_FIXTURE, tests_dir, tests_dir.relative_to(config.rootpath).as_posix())
 
     class WorkUnits(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
