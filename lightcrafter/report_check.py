@@ -19,6 +19,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import uuid
 from pathlib import Path
 
@@ -59,9 +60,12 @@ def find_browser() -> str | None:
     return None
 
 
-def _flags(browser: str) -> list[str]:
+def _flags(browser: str, profile: str) -> list[str]:
+    """``profile``: a fresh user-data folder, so that two checks at once (two test workers, two runs) never
+    share Chromium's profile lock."""
     return [browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--mute-audio",
-            "--allow-file-access-from-files", "--autoplay-policy=no-user-gesture-required"]
+            f"--user-data-dir={profile}", "--allow-file-access-from-files",
+            "--autoplay-policy=no-user-gesture-required"]
 
 
 def check_report(index: str | Path, *, browser: str | None = None, timeout_s: float = 120,
@@ -77,20 +81,23 @@ def check_report(index: str | Path, *, browser: str | None = None, timeout_s: fl
         raise RuntimeError("no Chromium found (apt-get install chromium)")
     harness = index.parent / f".check_{uuid.uuid4().hex[:8]}.html"
     harness.write_text(_HARNESS.format(page=index.name))
-    try:
-        r = subprocess.run(_flags(browser) + ["--virtual-time-budget=30000", "--dump-dom", harness.as_uri()],
-                           capture_output=True, text=True, timeout=timeout_s)
-    finally:
-        harness.unlink(missing_ok=True)
-    m = re.search(r'<pre id="verdict">(.*?)</pre>', r.stdout, re.S)
-    if not m or m.group(1).strip() == "pending":
-        raise RuntimeError(f"{index}: the browser never reported (exit {r.returncode}): {r.stderr[-500:]}")
-    verdict = json.loads(html.unescape(m.group(1)))
-    if screenshot:
-        subprocess.run(_flags(browser) + [f"--screenshot={Path(screenshot).resolve()}", "--window-size=1300,6000",
-                                          "--virtual-time-budget=10000", index.as_uri()],
-                       capture_output=True, timeout=timeout_s)
-        verdict["screenshot"] = str(screenshot)
+    with tempfile.TemporaryDirectory(prefix="report-check-") as profile:
+        try:
+            r = subprocess.run(_flags(browser, profile) + ["--virtual-time-budget=30000", "--dump-dom",
+                                                           harness.as_uri()],
+                               capture_output=True, text=True, timeout=timeout_s)
+        finally:
+            harness.unlink(missing_ok=True)
+        m = re.search(r'<pre id="verdict">(.*?)</pre>', r.stdout, re.S)
+        if not m or m.group(1).strip() == "pending":
+            raise RuntimeError(f"{index}: the browser never reported (exit {r.returncode}): {r.stderr[-500:]}")
+        verdict = json.loads(html.unescape(m.group(1)))
+        if screenshot:
+            subprocess.run(_flags(browser, profile) + [f"--screenshot={Path(screenshot).resolve()}",
+                                                       "--window-size=1300,6000", "--virtual-time-budget=10000",
+                                                       index.as_uri()],
+                           capture_output=True, timeout=timeout_s)
+            verdict["screenshot"] = str(screenshot)
     return verdict
 
 

@@ -594,9 +594,10 @@ def test_script_retry_after_a_hung_tool_sees_one_clip_keeps_the_aspect_and_clean
     write_video(tmp_path / "video", 5)
     out = tmp_path / "s0_t0"
     marker = tmp_path / "hung-once"
-    settings = {"commands": standin_commands(), "timeouts": {"diffusion_renderer": 4.0}}
+    settings = {"commands": standin_commands(), "timeouts": {"diffusion_renderer": 10.0}}  # the retry's tool
+    # must finish in it while the other test worker renders
     p = run_reconstruct(tmp_path / "video", out, settings, env={"STANDIN_HANG_ONCE": f"diffusion_renderer:{marker}"})
-    assert p.returncode == 1 and "diffusion_renderer command timed out after 4 s" in p.stderr, p.stderr[-2000:]
+    assert p.returncode == 1 and "diffusion_renderer command timed out after 10 s" in p.stderr, p.stderr[-2000:]
     assert marker.is_file() and (out / ".work" / "frames").is_dir() and not (out / "buffers.json").exists()
     p = run_reconstruct(tmp_path / "video", out, settings, env={"STANDIN_HANG_ONCE": f"diffusion_renderer:{marker}"})
     assert p.returncode == 0, p.stderr[-3000:]
