@@ -33,7 +33,9 @@ from __future__ import annotations
 
 import ast
 import hashlib
-from functools import lru_cache
+import json
+import os
+import tempfile
 from pathlib import Path
 
 PACKAGE = "lightcrafter"
@@ -48,18 +50,21 @@ def _module_name(path: Path, repo: Path) -> str:
 NOT_FOLLOWED = (f"{PACKAGE}.config",)
 
 
-@lru_cache(maxsize=None)
-def _scan(path: Path, repo: Path, stamp: tuple[int, int]) -> tuple[frozenset[str], bool, bytes]:
-    """(names the file imports, whether it has a module ``__getattr__``, the content that counts).
-    For ``from a import b``: ``a`` and ``a.b`` (``b`` may be a submodule); relative imports are resolved
-    against the file's package. ``stamp`` (mtime, size) keys the cache."""
+CACHE = Path(".snakemake") / "codeversion-cache.json"  # under the repository: what each file imports, its digest
+_MEMO: dict[Path, dict] = {}  # repository -> {relative path: entry}, loaded from CACHE once per process
+_DIRTY: set[Path] = set()
+
+
+def _scan(path: Path, repo: Path) -> dict:
+    """{"names": the dotted names the file imports, "lazy": whether it has a module ``__getattr__``, "digest":
+    SHA-256 of its syntax tree without docstrings (of its bytes when it does not parse)}. For ``from a import
+    b``: ``a`` and ``a.b`` (``b`` may be a submodule); relative imports are resolved against the file's
+    package. One pass over the tree."""
     data = path.read_bytes()
-    if path.suffix != ".py":
-        return frozenset(), False, data
     try:
         tree = ast.parse(data, filename=str(path))
     except (SyntaxError, ValueError):
-        return frozenset(), False, data
+        return {"names": [], "lazy": False, "digest": hashlib.sha256(data).hexdigest()}
     own = _module_name(path, repo).split(".") if path.is_relative_to(repo / PACKAGE) else []
     package = own if path.name == "__init__.py" else own[:-1]
     names: set[str] = set()
@@ -75,23 +80,50 @@ def _scan(path: Path, repo: Path, stamp: tuple[int, int]) -> tuple[frozenset[str
                 base = node.module or ""
             names.add(base)
             names.update(f"{base}.{alias.name}" for alias in node.names if alias.name != "*")
-    lazy = any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body)
-    return frozenset(n for n in names if n), lazy, _without_docstrings(tree).encode()
-
-
-def _without_docstrings(tree: ast.Module) -> str:
-    """``ast.dump`` of a module with the docstrings of the module, its classes and functions left out."""
-    for node in ast.walk(tree):
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
-            first = node.body[0]
+        elif isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]  # its docstring, if any, is left out of the digest (children are already queued)
             if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
                 node.body = node.body[1:] or [ast.Pass()]
-    return ast.dump(tree, include_attributes=False)
+    lazy = any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body)
+    digest = hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()
+    return {"names": sorted(n for n in names if n), "lazy": lazy, "digest": digest}
 
 
-def _scan_file(path: Path, repo: Path):
-    st = path.stat()
-    return _scan(path, repo, (st.st_mtime_ns, st.st_size))
+def _memo(repo: Path) -> dict:
+    if repo not in _MEMO:
+        try:
+            _MEMO[repo] = json.loads((repo / CACHE).read_text())
+        except (OSError, ValueError):
+            _MEMO[repo] = {}
+    return _MEMO[repo]
+
+
+def _scan_file(path: Path, repo: Path) -> dict:
+    """:func:`_scan`, kept in CACHE under a hash of the file's bytes, so that a Snakemake process (one per
+    cluster job) parses only the files that changed."""
+    data = path.read_bytes()
+    rel = path.relative_to(repo).as_posix() if path.is_relative_to(repo) else str(path)
+    memo, key = _memo(repo), hashlib.sha256(data).hexdigest()
+    entry = memo.get(rel)
+    if entry is None or entry.get("bytes") != key:
+        entry = memo[rel] = {"bytes": key, **_scan(path, repo)}
+        _DIRTY.add(repo)
+    return entry
+
+
+def _save(repo: Path) -> None:
+    """Writes CACHE (temporary name, then rename); a read-only checkout just keeps no cache."""
+    if repo not in _DIRTY:
+        return
+    _DIRTY.discard(repo)
+    try:
+        (repo / CACHE).parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=repo / CACHE.parent, prefix=".codeversion-", suffix=".tmp")
+        with os.fdopen(fd, "w") as f:
+            json.dump(_MEMO[repo], f)
+        os.replace(tmp, repo / CACHE)
+    except OSError:
+        pass
 
 
 def _module_files(name: str, repo: Path) -> list[Path]:
@@ -120,7 +152,7 @@ def covered_files(script: str | Path, repo: str | Path = REPO) -> list[Path]:
     todo = [script]
     while todo:
         path = todo.pop()
-        names = _scan_file(path, repo)[0]
+        names = _scan_file(path, repo)["names"]
         new: list[Path] = []
         for name in names:
             top = name.split(".")[0]
@@ -132,7 +164,7 @@ def covered_files(script: str | Path, repo: str | Path = REPO) -> list[Path]:
                 is_module = bool(mods) and _module_name(mods[-1], repo) == name
                 package = name if is_module else name.rsplit(".", 1)[0]
                 init = repo.joinpath(*package.split(".")) / "__init__.py"
-                if init.is_file() and _scan_file(init, repo)[1]:  # names resolved on first use: all of it
+                if init.is_file() and _scan_file(init, repo)["lazy"]:  # names resolved on first use: all of it
                     new += [f for f in init.parent.rglob("*.py") if "__pycache__" not in f.parts]
             elif "." not in name and path.parent == script.parent and (script.parent / f"{name}.py").is_file():
                 new.append(script.parent / f"{name}.py")
@@ -152,5 +184,6 @@ def code_fingerprint(script: str | Path, repo: str | Path = REPO) -> str:
     h = hashlib.sha256()
     for f in covered_files(script, repo):
         rel = f.relative_to(repo).as_posix() if f.is_relative_to(repo) else f.name
-        h.update(rel.encode() + b"\0" + _scan_file(f, repo)[2] + b"\0")
+        h.update(f"{rel}\0{_scan_file(f, repo)['digest']}\0".encode())
+    _save(repo)
     return h.hexdigest()[:16]

@@ -177,3 +177,22 @@ def test_editing_library_code_reruns_the_jobs_that_import_it_and_no_others(tmp_p
     assert "Params have changed since last execution" in dry.stdout, dry.stdout[-3000:]
     for rule in ("generate_assets", "curate_assets", "sample_scene"):
         assert f"rule {rule}:" in dry.stdout, (rule, dry.stdout[-3000:])
+
+
+def test_the_cache_of_parsed_files_follows_their_bytes(tree):
+    """Each Snakemake process (one per cluster job) reads the parsed files from .snakemake/codeversion-cache.json;
+    an edit is seen through it, whatever the file's timestamp."""
+    import os
+
+    from lightcrafter import codeversion
+
+    first = code_fingerprint(tree / "scripts/job.py", tree)
+    assert (tree / codeversion.CACHE).is_file()
+    codeversion._MEMO.clear()  # as a new process
+    assert code_fingerprint(tree / "scripts/job.py", tree) == first
+    cameras = tree / "lightcrafter/recon/cameras.py"
+    stat = cameras.stat()
+    cameras.write_text(cameras.read_text().replace("pass", "return 1"))
+    os.utime(cameras, ns=(stat.st_atime_ns, stat.st_mtime_ns))  # same timestamp
+    codeversion._MEMO.clear()
+    assert code_fingerprint(tree / "scripts/job.py", tree) != first
