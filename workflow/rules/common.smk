@@ -147,13 +147,18 @@ def script_path(name):
     return str(Path(workflow.basedir) / "scripts" / name)
 
 
+@functools.lru_cache(maxsize=None)  # one fingerprint per script and workflow parse
+def _code(name):
+    return code_fingerprint(script_path(name), workflow.basedir)
+
+
 def script_params(name):
     """A rule's params for its entry point: `script` (script_path) and `code`, the fingerprint of the script
     and the library code it imports (lightcrafter.codeversion), so that editing either reruns the rule's jobs
     (Snakemake's params trigger; its code trigger does not see shell commands)."""
     return {
         "script": script_path(name),
-        "code": code_fingerprint(script_path(name), workflow.basedir),
+        "code": _code(name),
     }
 
 
