@@ -416,3 +416,19 @@ def read_video(path: str | os.PathLike, max_frames: int | None = None) -> tuple[
     if not frames:
         raise DataError(f"{path}: video has no frames; replace it or remove it from config")
     return np.stack(frames), float(meta.get("fps", 24.0))
+
+
+def side_by_side_video(folders: list[Path], out: Path, fps: float = 12.0, scale: int = 2) -> Path | None:
+    """An mp4 of the frame folders side by side (linear EXR frames -> display), each upscaled ``scale`` x."""
+    folders = [f for f in folders if f is not None and (f / "0000.exr").is_file()]
+    if not folders:
+        return None
+    n = min(sum(1 for _ in f.glob("*.exr")) for f in folders)
+    frames = []
+    for i in range(n):
+        row = [to_uint8(linear_to_display(read_rgb_exr(f / f"{i:04d}.exr"))) for f in folders]
+        h = min(r.shape[0] for r in row)
+        row = [np.repeat(np.repeat(r[:h], scale, 0), scale, 1) for r in row]
+        frames.append(np.concatenate([np.pad(r, ((0, 0), (0, 4), (0, 0)), constant_values=255) for r in row], 1))
+    write_video(out, np.stack(frames), fps=fps)
+    return out

@@ -34,7 +34,7 @@ def main() -> int:
     from lightcrafter import longform
     from lightcrafter.refiner import load_model, refine_video
     from lightcrafter.refiner.data import load_frames, to_display_frames
-    from lightcrafter.report import side_by_side_video
+    from lightcrafter.io import side_by_side_video
 
     out = Path(a.out)
     model = load_model(a.model)

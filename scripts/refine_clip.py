@@ -37,7 +37,7 @@ def main() -> int:
         torch.set_num_threads(a.threads)
     from lightcrafter.refiner import load_model, refine_video
     from lightcrafter.refiner.data import load_frames, to_display_frames
-    from lightcrafter.report import side_by_side_video
+    from lightcrafter.io import side_by_side_video
 
     proxy_dir, out = Path(a.proxy), Path(a.out)
     man = io.read_json(proxy_dir.with_suffix(".json"))
