@@ -68,8 +68,9 @@ def e2e_run(tmp_path_factory):
 # below: the tests of a module form one unit (a module-scoped fixture such as the SLURM cluster or the paper
 # dry run is built once), and the tests that use the tiny end-to-end run (e2e_run, about 12 minutes on 2
 # cores) form one unit across modules, so that only one worker builds it; that unit goes first, as the
-# longest chain. Without xdist (`pytest`, `-p no:xdist`) the tests run in one process in the same order. (xdist's own loadgroup does not group under pytest 9: it renames test ids through an
-# attribute pytest 9 no longer reads.)
+# longest chain. Without xdist (`pytest`, `-p no:xdist`) the tests run in one process in the same order.
+# (xdist's own loadgroup does not group under pytest 9: it renames test ids through an attribute pytest 9
+# no longer reads.)
 E2E_FIXTURE = "e2e_run"
 
 

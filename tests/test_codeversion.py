@@ -126,6 +126,8 @@ def test_the_repository_scripts_cover_their_own_stages_only():
     assert {"lightcrafter/recon/default.py", "lightcrafter/recon/estimator.py"} <= recon
     assert not any(f.startswith(("lightcrafter/refiner/", "lightcrafter/blender/")) for f in recon)
     assert "lightcrafter/refiner/training.py" in train and not any(f.startswith("lightcrafter/blender/") for f in train)
+    for script in ("refine_clip.py", "longform.py"):  # they write a side-by-side video, not a report
+        assert not any(f.startswith("lightcrafter/report/") for f in covered(script)), script
     assert covered("generate_assets.py") == {"scripts/generate_assets.py", "scripts/_cli.py", "lightcrafter/errors.py",
                                              "lightcrafter/assets.py", "lightcrafter/io.py"}
     for script in ("curate_assets.py", "sample_scene.py"):
