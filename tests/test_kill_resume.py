@@ -88,15 +88,16 @@ DETERMINISTIC = ["scenes/*/scene.json", "assets/manifest.json", "gt/*/*/buffers.
 NEAR = ["recon/*/*/buffers.json", "aligned/*/*/buffers.json"]
 NEAR_ATOL, NEAR_RTOL = 1e-3, 1e-3  # numbers of Phi's manifests (observed: at most 4e-5 absolute)
 # Pixel and point counts (sky pixels cut, SfM points) move by whole pixels where a threshold meets the last
-# bits of a depth (observed: 7783 vs 7768 sky pixels cut on s0000_t0, 0.2 %); a count within 1 % is the same.
-# Only these keys are such counts; every other integer (sizes, frame counts, settings) must be equal.
-COUNT_RTOL = 1e-2
+# bits of a depth (observed: 7783 vs 7768 sky pixels cut on s0000_t0, 0.2 %; 61 vs 60 in another run); a count
+# within 1 % or 2 is the same. Only these keys are such counts; every other integer (sizes, frame counts,
+# settings) must be equal.
+COUNT_RTOL, COUNT_ATOL = 1e-2, 2
 COUNT_KEYS = frozenset({"sky_pixels_cut", "hole_pixels_filled", "points"})
 
 
 def _assert_json_near(a, b, where: str) -> None:
     """Same structure and strings (content ids aside), integers equal (the counts of COUNT_KEYS within
-    COUNT_RTOL), other numbers within NEAR_ATOL + NEAR_RTOL * |a|."""
+    COUNT_RTOL or COUNT_ATOL), other numbers within NEAR_ATOL + NEAR_RTOL * |a|."""
     if isinstance(a, dict):
         assert isinstance(b, dict) and set(a) == set(b), f"{where}: keys differ"
         for k in a:
@@ -108,7 +109,7 @@ def _assert_json_near(a, b, where: str) -> None:
             _assert_json_near(x, y, f"{where}[{i}]")
     elif isinstance(a, int) and isinstance(b, int) and not isinstance(a, bool):
         if where.rsplit("/", 1)[-1] in COUNT_KEYS:
-            assert abs(a - b) <= COUNT_RTOL * abs(a), f"{where}: count {a} vs {b}"
+            assert abs(a - b) <= max(COUNT_ATOL, COUNT_RTOL * abs(a)), f"{where}: count {a} vs {b}"
         else:
             assert a == b, f"{where}: {a} vs {b} (an integer that is not a pixel or point count must not change)"
     elif isinstance(a, (int, float)) and not isinstance(a, bool):
@@ -175,8 +176,11 @@ def test_killed_runs_resume_to_the_uninterrupted_result(e2e_run, tmp_path_factor
 def test_manifest_comparison_allows_a_moved_pixel_count_but_not_a_changed_size():
     _assert_json_near({"phi": {"sky_pixels_cut": 7783, "points": 653}},
                       {"phi": {"sky_pixels_cut": 7768, "points": 650}}, "m")
+    _assert_json_near({"phi": {"sky_pixels_cut": 61}}, {"phi": {"sky_pixels_cut": 60}}, "m")
     with pytest.raises(AssertionError, match="count"):
         _assert_json_near({"phi": {"sky_pixels_cut": 7783}}, {"phi": {"sky_pixels_cut": 7000}}, "m")
+    with pytest.raises(AssertionError, match="count"):
+        _assert_json_near({"phi": {"sky_pixels_cut": 61}}, {"phi": {"sky_pixels_cut": 57}}, "m")
     for key in ("width", "frames", "registered"):
         with pytest.raises(AssertionError, match="must not change"):
             _assert_json_near({key: 192}, {key: 191}, "m")
