@@ -55,12 +55,11 @@ _MEMO: dict[Path, dict] = {}  # repository -> {relative path: entry}, loaded fro
 _DIRTY: set[Path] = set()
 
 
-def _scan(path: Path, repo: Path) -> dict:
+def _scan(path: Path, repo: Path, data: bytes) -> dict:
     """{"names": the dotted names the file imports, "lazy": whether it has a module ``__getattr__``, "digest":
-    SHA-256 of its syntax tree without docstrings (of its bytes when it does not parse)}. For ``from a import
-    b``: ``a`` and ``a.b`` (``b`` may be a submodule); relative imports are resolved against the file's
-    package. One pass over the tree."""
-    data = path.read_bytes()
+    SHA-256 of its syntax tree without docstrings (of its bytes when it does not parse)}, for ``data``, the
+    bytes of ``path``. For ``from a import b``: ``a`` and ``a.b`` (``b`` may be a submodule); relative imports
+    are resolved against the file's package. One pass over the tree."""
     try:
         tree = ast.parse(data, filename=str(path))
     except (SyntaxError, ValueError):
@@ -106,7 +105,7 @@ def _scan_file(path: Path, repo: Path) -> dict:
     memo, key = _memo(repo), hashlib.sha256(data).hexdigest()
     entry = memo.get(rel)
     if entry is None or entry.get("bytes") != key:
-        entry = memo[rel] = {"bytes": key, **_scan(path, repo)}
+        entry = memo[rel] = {"bytes": key, **_scan(path, repo, data)}
         _DIRTY.add(repo)
     return entry
 
