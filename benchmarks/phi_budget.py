@@ -12,8 +12,10 @@ For every synthetic test pair of a finished run (results/), R renders the target
   imports; else the row says why it is missing).
 
 Components (lightcrafter.io.Buffers and the clip's cameras): ``cameras`` (K and c2w), ``depth``
-(z-depth where both are surface), ``normals`` (world), ``albedo``, ``roughness_metallic``, ``mask``
-(which pixels are surface: pixels only the donor sees take all of the donor's values there). The target
+(z-depth where both are surface), ``normals`` (world), ``ground_normals`` (the normals of the ground only:
+pixels whose ground-truth normal is within 2 degrees of world +Z, lightcrafter.recon.evaluate.ground_pixels;
+Phi snaps its ground to one plane, and that plane's tilt decides the shading of most of a frame under a low
+sun), ``albedo``, ``roughness_metallic``, ``mask`` (which pixels are surface: pixels only the donor sees take all of the donor's values there). The target
 lighting is the scene's own on synthetic pairs, so the environment map is not a Phi component here
 (real clips fit it: results/summary/reconstruction.json reports their pseudo-input error).
 
@@ -44,11 +46,12 @@ from lightcrafter import io  # noqa: E402
 from lightcrafter.clip import FrameView, read_clip  # noqa: E402
 from lightcrafter.layout import Layout  # noqa: E402
 
-COMPONENTS = ("cameras", "depth", "normals", "albedo", "roughness_metallic", "mask")
+COMPONENTS = ("cameras", "depth", "normals", "ground_normals", "albedo", "roughness_metallic", "mask")
 
 
-def swap(base: FrameView, donor: FrameView, component: str) -> FrameView:
-    """``base`` with one component taken from ``donor`` (same frame, same size)."""
+def swap(base: FrameView, donor: FrameView, component: str, ground: np.ndarray | None = None) -> FrameView:
+    """``base`` with one component taken from ``donor`` (same frame, same size). ``ground_normals`` needs
+    ``ground`` (H, W) bool, the ground-truth view's ground (lightcrafter.recon.evaluate.ground_pixels)."""
     if component == "cameras":
         return FrameView(base.buffers, donor.K, donor.c2w, base.key + "#cam")
     b, d = base.buffers, donor.buffers
@@ -61,6 +64,10 @@ def swap(base: FrameView, donor: FrameView, component: str) -> FrameView:
         out.depth = np.where(both, d.depth, b.depth).astype(np.float32)
     elif component == "normals":
         out.normal = np.where(both[..., None], d.normal, b.normal).astype(np.float32)
+    elif component == "ground_normals":
+        if ground is None:
+            raise ValueError("component 'ground_normals' needs the ground-truth view's ground pixels (ground=)")
+        out.normal = np.where((both & ground)[..., None], d.normal, b.normal).astype(np.float32)
     elif component == "albedo":
         out.albedo = np.where(both[..., None], d.albedo, b.albedo).astype(np.float32)
     elif component == "roughness_metallic":
@@ -102,6 +109,7 @@ def _oidn(frames: list[np.ndarray]) -> list[np.ndarray] | str:
 def budget_rows(gt_views, phi_views, settings, scene_static: bool):
     """(row name, settings, views) for every row of the budget of one clip."""
     from lightcrafter.proxy.clip import resolve_visibility
+    from lightcrafter.recon.evaluate import ground_pixels
 
     s_gt = resolve_visibility(settings, scene_static, True)
     s_phi = resolve_visibility(settings, scene_static, False)
@@ -110,8 +118,9 @@ def budget_rows(gt_views, phi_views, settings, scene_static: bool):
     for c in COMPONENTS:
         # a mixed clip whose depth or cameras come from Phi is as inconsistent over frames as Phi's
         phi_geom = c in ("cameras", "depth", "mask")
-        rows.append((f"gt+phi:{c}", s_phi if phi_geom else s_gt, [swap(g, p, c) for g, p in zip(gt_views, phi_views)]))
-        rows.append((f"phi+gt:{c}", s_phi, [swap(p, g, c) for g, p in zip(gt_views, phi_views)]))
+        rows.append((f"gt+phi:{c}", s_phi if phi_geom else s_gt,
+                     [swap(g, p, c, ground_pixels(g.buffers)) for g, p in zip(gt_views, phi_views)]))
+        rows.append((f"phi+gt:{c}", s_phi, [swap(p, g, c, ground_pixels(g)) for g, p in zip(gt_views, phi_views)]))
     return rows
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from lightcrafter import io
 from lightcrafter.clip import FrameView
+from lightcrafter.recon.evaluate import ground_pixels
 
 spec = importlib.util.spec_from_file_location("phi_budget", Path(__file__).resolve().parents[1] / "benchmarks" /
                                               "phi_budget.py")
@@ -59,12 +61,30 @@ def test_mask_swap_takes_the_donors_surface_pixels_and_drops_the_ones_it_lacks()
     np.testing.assert_array_equal(out.albedo[1:, 1:], base.buffers.albedo[1:, 1:])
 
 
+def test_ground_normals_come_from_the_donor_on_the_ground_truths_ground_only():
+    gt, phi = _view(0, np.s_[0, :]), _view(1, np.s_[:, 0])
+    up = gt.buffers.normal.copy()
+    up[3:] = [0.0, 0.0, 1.0]  # rows 3.. are ground
+    up[3, 2] = [np.sin(np.radians(5.0)), 0.0, np.cos(np.radians(5.0))]  # tilted 5 degrees: not ground
+    gt = FrameView(replace(gt.buffers, normal=up), gt.K, gt.c2w, gt.key)
+    ground = ground_pixels(gt.buffers)
+    assert ground[4:, :].all() and not ground[:3].any() and not ground[3, 2] and ground[3, 3]
+    both = (gt.buffers.mask > 0) & (phi.buffers.mask > 0)
+    fixed = budget.swap(phi, gt, "ground_normals", ground).buffers  # phi+gt: Phi's ground turned to the truth
+    np.testing.assert_array_equal(fixed.normal[ground & both], up[ground & both])
+    np.testing.assert_array_equal(fixed.normal[~(ground & both)], phi.buffers.normal[~(ground & both)])
+    for k in ("depth", "albedo", "roughness", "metallic", "mask"):
+        np.testing.assert_array_equal(getattr(fixed, k), getattr(phi.buffers, k))
+    with pytest.raises(ValueError, match="ground pixels"):
+        budget.swap(phi, gt, "ground_normals")
+
+
 def test_camera_swap_and_identity():
     base, donor = _view(0, np.s_[0, :]), _view(1, np.s_[:, 0])
     cam = budget.swap(base, donor, "cameras")
     assert cam.buffers is base.buffers and cam.K is donor.K and cam.c2w is donor.c2w
     for c in budget.COMPONENTS:
-        same = budget.swap(base, base, c).buffers
+        same = budget.swap(base, base, c, np.ones((H, W), bool)).buffers
         for k in ("depth", "normal", "albedo", "roughness", "metallic", "mask"):
             np.testing.assert_array_equal(getattr(same, k), getattr(base.buffers, k))
     with pytest.raises(ValueError, match="component"):

@@ -43,6 +43,7 @@ def test_phi_runs_once_per_trajectory_and_is_scored(e2e_run):
     assert scored, r["skipped"]
     for c in scored:  # errors after Align are finite and the cameras are close to the truth
         assert c["rotation_deg"] < 5 and 0 <= c["depth_abs_rel"] < 1 and 0 < c["normal_deg"] < 90
+        assert 0 <= c["ground_tilt_deg"] < 45  # every scene stands on a ground Phi sees
     assert set(r["real"]) == {"bikes_f190", "carphone_pristine_f0"}
 
 

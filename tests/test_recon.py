@@ -392,3 +392,26 @@ def test_sfm_enlarges_small_frames_to_min_width_and_leaves_large_ones():
     s = SfM(min_width_px=320)
     assert [s.upscale_for(w) for w in (192, 160, 320, 720, 50)] == [2, 2, 1, 1, 4]
     assert SfM(upscale=3).upscale_for(720) == 3  # without min_width_px the fixed factor applies
+
+
+def test_ground_tilt_is_the_angle_of_phis_mean_normal_on_the_true_ground():
+    from dataclasses import replace
+
+    from lightcrafter.recon.evaluate import ground_pixels, ground_tilt_deg
+
+    h, w = 4, 6
+    n_gt = np.zeros((h, w, 3), np.float32)
+    n_gt[..., 2] = 1.0
+    n_gt[0] = [1.0, 0.0, 0.0]  # a wall: not ground
+    gt = io.Buffers(depth=np.full((h, w), 2.0, np.float32), normal=n_gt, albedo=np.zeros((h, w, 3), np.float32),
+                    roughness=np.zeros((h, w), np.float32), metallic=np.zeros((h, w), np.float32),
+                    mask=np.ones((h, w), np.float32))
+    assert ground_pixels(gt).sum() == (h - 1) * w
+    t = np.radians(10.0)
+    n_phi = np.broadcast_to(np.array([np.sin(t), 0.0, np.cos(t)], np.float32), (h, w, 3)).copy()
+    n_phi[0] = [0.0, 1.0, 0.0]  # Phi's wall is wrong too, but it is not ground
+    phi = replace(gt, normal=n_phi)
+    assert abs(ground_tilt_deg([phi, phi], [gt, gt]) - 10.0) < 1e-4
+    assert ground_tilt_deg([gt], [gt]) < 1e-3
+    no_ground = replace(gt, mask=np.zeros((h, w), np.float32))
+    assert np.isnan(ground_tilt_deg([phi], [no_ground]))

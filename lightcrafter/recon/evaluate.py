@@ -5,6 +5,9 @@ and the ground-truth clip. All errors are on the ALIGNED reconstruction (the one
 
 * depth_abs_rel: mean |d - d_gt| / d_gt over pixels that are surface in both (no further rescaling);
 * normal_deg: mean angle between world normals (degrees);
+* ground_tilt_deg: angle (degrees) between world +Z and the mean aligned normal over the ground-truth ground
+  (:func:`ground_pixels`, all distinct frames): the tilt of the plane Phi snaps its ground to, which decides
+  the shading of most of a frame under a low sun (NaN when no frame sees ground);
 * albedo_psnr_db: PSNR of linear albedo, peak 1; roughness_mae, metallic_mae;
 * rotation_deg: median over frames of the angle of R_gt^T R_aligned (camera orientation error, degrees);
 * translation_m: median distance between aligned and true camera centres (metres);
@@ -17,7 +20,27 @@ from __future__ import annotations
 import numpy as np
 
 from lightcrafter import clip as clipmod
+from lightcrafter import io
 from lightcrafter.recon.estimator import buffer_errors
+
+GROUND_DEG = 2.0  # a ground-truth normal within this angle of world +Z is ground
+
+
+def ground_pixels(gt: io.Buffers, max_deg: float = GROUND_DEG) -> np.ndarray:
+    """(H, W) bool: surface pixels of ground-truth buffers whose world normal is within ``max_deg`` degrees of
+    world +Z (the Z-up world of the scenes)."""
+    return (gt.mask > 0.5) & np.isfinite(gt.depth) & (gt.normal[..., 2] > np.cos(np.radians(max_deg)))
+
+
+def ground_tilt_deg(pred: list[io.Buffers], gt: list[io.Buffers]) -> float:
+    """Angle (degrees) between +Z and the mean of ``pred``'s world normals over the pixels that are ground in
+    ``gt`` (:func:`ground_pixels`) and surface in ``pred``, over all frames; NaN when there are none."""
+    total = np.zeros(3)
+    for p, g in zip(pred, gt):
+        on = ground_pixels(g) & (p.mask > 0.5)
+        total += p.normal[on].astype(np.float64).sum(0)
+    norm = np.linalg.norm(total)
+    return float(np.degrees(np.arccos(np.clip(total[2] / norm, -1.0, 1.0)))) if norm > 0 else float("nan")
 
 
 def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -40,6 +63,8 @@ def clip_errors(est_clip, aligned_clip, gt_clip) -> dict:
                                    "metallic": a.metallic, "mask": a.mask}, g, None, align_depth_scale=False))
     keys = [k for k in rows[0] if k != "pixels"]
     out = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
+    frames = list(info_g.distinct_frames)
+    out["ground_tilt_deg"] = ground_tilt_deg([views_a[i].buffers for i in frames], [views_g[i].buffers for i in frames])
     rot = [rotation_angle_deg(va.c2w[:3, :3], vg.c2w[:3, :3]) for va, vg in zip(views_a, views_g)]
     trans = [float(np.linalg.norm(va.c2w[:3, 3] - vg.c2w[:3, 3])) for va, vg in zip(views_a, views_g)]
     phi = est.manifest.get("phi", {})
@@ -69,6 +94,8 @@ def summarize(per_clip: dict[str, dict], motions: dict[str, str]) -> dict:
     for motion, rows in sorted(groups.items()):
         out["by_motion"][motion] = {"clips": len(rows), **{k: float(np.mean([r[k] for r in rows])) for k in keys}}
         out["by_motion"][motion]["rotation_deg_median"] = float(np.median([r["rotation_deg"] for r in rows]))
+        tilts = [r["ground_tilt_deg"] for r in rows if np.isfinite(r.get("ground_tilt_deg", np.nan))]
+        out["by_motion"][motion]["ground_tilt_deg_median"] = float(np.median(tilts)) if tilts else None
     moving = [e for cid, e in per_clip.items() if "skipped" not in e and not e["camera_static_detected"]]
     n_mov = sum(e["frames"] for e in moving)
     out["moving_camera_frames_registered"] = (float(sum(e["registered_fraction"] * e["frames"] for e in moving) / n_mov)
