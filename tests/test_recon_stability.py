@@ -258,3 +258,42 @@ def test_ground_plane_turned_to_the_predicted_normals_keeps_its_pixels_and_takes
     np.testing.assert_allclose(n_p_world[0], np.broadcast_to(n_p, (h, w, 3)), atol=1e-12)
     with pytest.raises(ValueError, match="ground_plane_normal"):
         snap_to_ground_plane(*args, normal_from="sky")
+
+
+def test_depth_sfm_ground_takes_the_mean_of_the_depths_and_the_sfm_points_tilt():
+    """The depth puts the ground 6 deg off +Z; SfM points seen on it lie on a plane 2 deg off the other way
+    (plus points on an object above it, which the trimmed fit drops): ``depth_sfm`` turns the snapped plane to
+    the mean of the two normals, through the inliers' offset. Too few points seen on the ground, or no SfM
+    at all, keep the depth's plane."""
+    import math
+
+    from lightcrafter.camera import intrinsics, opencv_c2w
+    from lightcrafter.recon.default import MIN_SFM_GROUND_POINTS, plane_depth, snap_to_ground_plane
+
+    w, h = 64, 48
+    K = intrinsics(w, h, math.radians(60.0))
+    c2w = opencv_c2w([0.0, 0.0, 1.5], [0.0, 2.0, 0.0])
+    t = math.radians(6.0)
+    n_depth = np.array([math.sin(t), 0.0, math.cos(t)])
+    depth = plane_depth(n_depth, 0.0, K, c2w, h, w)
+    s = math.radians(-2.0)
+    n_sfm = np.array([math.sin(s), 0.0, math.cos(s)])
+    rng = np.random.default_rng(1)
+    uv = np.stack([rng.uniform(0, w - 1, 60), rng.uniform(h / 2, h - 1, 60)], 1)  # lower half: the ground
+    z = plane_depth(n_sfm, 0.0, K, c2w, h, w)[np.round(uv[:, 1]).astype(int), np.round(uv[:, 0]).astype(int)]
+    rays = np.linalg.inv(K) @ np.concatenate([uv.T, np.ones((1, len(uv)))])  # OpenCV camera rays, z = 1
+    pts = (c2w[:3, :3] @ (rays * z)).T + c2w[:3, 3]
+    pts[:8, 2] += 0.4  # points on an object standing on the ground
+    obs = [(uv, np.arange(len(uv)))]
+    normals = np.broadcast_to(n_depth, (h, w, 3)).copy()
+    args = (depth[None], normals[None], np.ones((1, h, w), bool), K[None], c2w[None], 0.05, 25.0)
+    d, n_w, (n, o), info = snap_to_ground_plane(*args, normal_from="depth_sfm", sfm=(pts, obs))
+    want = (n_depth + n_sfm) / np.linalg.norm(n_depth + n_sfm)
+    assert math.degrees(math.acos(min(1.0, n @ want))) < 0.3
+    g = info["ground_plane"]
+    assert g["normal_from"] == "depth_sfm" and g["sfm_ground_points"] == 60 and abs(g["turned_deg"] - 4.0) < 0.3
+    np.testing.assert_allclose(d[0], plane_depth(n, o, K, c2w, h, w), rtol=1e-6)
+    np.testing.assert_allclose(n_w[0], np.broadcast_to(n, (h, w, 3)), atol=1e-12)
+    for sfm in (None, (pts, [(uv[: MIN_SFM_GROUND_POINTS - 1], np.arange(MIN_SFM_GROUND_POINTS - 1))])):
+        _, _, (n_only, _), info = snap_to_ground_plane(*args, normal_from="depth_sfm", sfm=sfm)
+        assert math.degrees(math.acos(min(1.0, n_only @ n_depth))) < 0.5 and info["ground_plane"]["turned_deg"] == 0

@@ -332,10 +332,11 @@ class Recon(Section):
                                                 "its depth")
     ground_plane_max_tilt_deg: PositiveFloat = Field(25.0, lt=90, description="largest angle between a pixel's "
                                                      "normal (and the plane's) and the up direction")
-    ground_plane_normal: Literal["depth", "predicted", "auto"] = Field(
+    ground_plane_normal: Literal["depth", "predicted", "depth_sfm", "auto"] = Field(
         "depth", description="default backend, with ground_plane: the plane's orientation from the depth (RANSAC), "
-        "from the estimator's normals of its pixels (predicted), or predicted for a static camera and depth for a "
-        "moving one (auto: a static camera has no SfM points to tilt the depth with)")
+        "from the estimator's normals of its pixels (predicted), from the mean of the depth's and the SfM points' "
+        "on its pixels (depth_sfm), or predicted for a static camera and depth_sfm for a moving one (auto: a "
+        "static camera has no SfM points)")
     sky_beyond_ground: NonNegativeFloat = Field(0.0, description="default backend, with ground_plane: surface "
                                                 "pixels off the plane farther than this multiple of the "
                                                 "frame's farthest ground pixel become background (the estimator's "

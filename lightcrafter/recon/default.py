@@ -42,6 +42,9 @@ from lightcrafter import io
 from lightcrafter.recon.cameras import CameraTrack, ReconstructionError, SfMSettings, estimate_cameras, point_depths
 
 
+GROUND_NORMALS = ("depth", "predicted", "depth_sfm")  # recon.ground_plane_normal, besides auto
+
+
 @dataclass
 class DefaultSettings:
     """fov_x_deg: intrinsics prior (horizontal field of view, degrees); camera: auto (static detection,
@@ -52,8 +55,9 @@ class DefaultSettings:
     surface or smaller than this fraction of the frame are holes, filled from the nearest surface pixel
     (:func:`hole_pixels`; 0 = off); ground_plane: snap the dominant supporting plane
     (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
-    ``ground_plane_max_tilt_deg``; ground_plane_normal: depth | predicted | auto, the plane's orientation from
-    the depth or the predicted normals of its pixels, auto = predicted for a static camera);
+    ``ground_plane_max_tilt_deg``; ground_plane_normal: depth | predicted | depth_sfm | auto, the plane's
+    orientation from the depth, the predicted normals of its pixels, or the mean of the depth's and of the SfM
+    points seen on its pixels; auto = predicted for a static camera, depth_sfm for a moving one);
     sky_beyond_ground: with the plane, surface pixels off it farther than this multiple of the frame's
     farthest ground pixel become background
     (:func:`cut_sky_beyond_ground`; 0 = off); sfm: SfMSettings fields; exposure_ev: display
@@ -87,8 +91,9 @@ class DefaultSettings:
             raise ValueError(f"recon.depth_fit={s.depth_fit!r}: use one of {list(DEPTH_FIT_MODES)}")
         if s.sky_beyond_ground and s.sky_beyond_ground < 1.0:
             raise ValueError(f"recon.sky_beyond_ground={s.sky_beyond_ground!r}: use 0 (off) or a ratio >= 1")
-        if s.ground_plane_normal not in ("depth", "predicted", "auto"):
-            raise ValueError(f"recon.ground_plane_normal={s.ground_plane_normal!r}: use 'depth', 'predicted' or 'auto'")
+        if s.ground_plane_normal not in GROUND_NORMALS + ("auto",):
+            raise ValueError(f"recon.ground_plane_normal={s.ground_plane_normal!r}: use one of "
+                             f"{list(GROUND_NORMALS + ('auto',))}")
         if s.normals not in ("predicted", "depth"):
             raise ValueError(f"recon.normals={s.normals!r}: use 'predicted' or 'depth'")
         from lightcrafter.config import validate_section
@@ -302,9 +307,39 @@ def plane_depth(n: np.ndarray, o: float, K: np.ndarray, c2w: np.ndarray, h: int,
     return np.where(np.isfinite(z) & (z > 0), z, np.inf)
 
 
+MIN_SFM_GROUND_POINTS = 20  # depth_sfm keeps the depth's plane when fewer SfM points lie on the ground
+
+
+def sfm_ground_normal(points: np.ndarray, observations: list[tuple[np.ndarray, np.ndarray]], on: list[np.ndarray],
+                      min_points: int = MIN_SFM_GROUND_POINTS) -> tuple[np.ndarray, int] | None:
+    """Unit normal (facing +Z) of the least-squares plane through the SfM points (P, 3, world) that some frame
+    observes on a ground pixel (``on[i]`` (H, W) bool; observations: per frame (uv_px (M, 2), point index (M,)),
+    OpenCV pixel centres), three rounds keeping the 80 % smallest residuals; with the number of points. None
+    when fewer than ``min_points``. The SfM points are triangulated from several views, so their plane's tilt
+    does not share the errors of the per-frame depth fits."""
+    ids = set()
+    for (uv, idx), mask in zip(observations, on):
+        if len(idx) == 0:
+            continue
+        h, w = mask.shape
+        col = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
+        row = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
+        ids.update(np.asarray(idx)[mask[row, col]].tolist())
+    if len(ids) < min_points:
+        return None
+    P = np.asarray(points, np.float64)[sorted(ids)]
+    keep = np.ones(len(P), bool)
+    for _ in range(3):
+        c0 = P[keep].mean(0)
+        n = np.linalg.svd(P[keep] - c0, full_matrices=False)[2][-1]
+        r = np.abs((P - c0) @ n)
+        keep = r <= max(np.percentile(r, 80), 1e-12)
+    return n * np.sign(n[2] or 1.0), len(P)
+
+
 def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.ndarray, K: np.ndarray,
                          c2w: np.ndarray, tol_rel: float, max_tilt_deg: float, min_support: float = 0.25,
-                         max_points: int = 20000, normal_from: str = "depth"):
+                         max_points: int = 20000, normal_from: str = "depth", sfm=None):
     """The dominant supporting plane of a Z-up clip, from the depth maps of every frame (metres of the
     clip's units): pixels whose points lie within ``tol_rel`` of the plane (relative to their depth) and whose
     normals are within ``max_tilt_deg`` of the plane's take the plane's depth and normal exactly (a
@@ -313,15 +348,20 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     surface pixels (info ``support_fraction``, ``used``). ``normal_from``: ``depth`` snaps to the RANSAC plane
     itself; ``predicted`` keeps its inliers (which pixels are ground) but turns the plane to the mean of their
     per-pixel normals ``n_world`` (through their median offset): where the depth's tilt is the estimator's
-    guess alone (a static camera: no SfM points to fit it to), its normals may tilt the ground better.
+    guess alone (a static camera: no SfM points to fit it to), its normals may tilt the ground better;
+    ``depth_sfm`` keeps the inliers too and turns the plane to the mean of the RANSAC normal and the normal of
+    the SfM points seen on them (:func:`sfm_ground_normal`; ``sfm`` = (points (P, 3) in the given world,
+    per-frame observations)), two estimates whose errors differ: on the default run's 6 moving-camera train
+    clips the ground's tilt against the truth was 5.2 deg (mean) from the depth, 7.3 from the SfM points and
+    2.7 from their mean. Without ``sfm`` or enough points it is ``depth``.
     Returns (depth, n_world, plane (n, o) or None, info) with the plane n . x = o in the given world."""
     from lightcrafter.proxy.geometry import unproject
 
     nf, h, w = depth.shape
     rng = np.random.default_rng(0)
     cos_max = np.cos(np.radians(max_tilt_deg))
-    if normal_from not in ("depth", "predicted"):
-        raise ValueError(f"recon.ground_plane_normal={normal_from!r}: use 'depth' or 'predicted'")
+    if normal_from not in GROUND_NORMALS:
+        raise ValueError(f"recon.ground_plane_normal={normal_from!r}: use one of {list(GROUND_NORMALS)}")
     pts, dists = [], []
     for i in range(nf):
         ok = surface[i] & np.isfinite(depth[i]) & (n_world[i][..., 2] > cos_max)
@@ -341,20 +381,27 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
         on = surface[i] & np.isfinite(zp) & (np.abs(depth[i] - zp) < tol_rel * zp) & \
             ((n_world[i] @ n) > np.cos(np.radians(max_tilt_deg)))
         ons.append((on, zp))
-    tilt_change = 0.0
+    tilt_change, n_new, sfm_points = 0.0, None, None
     if normal_from == "predicted" and any(on.any() for on, _ in ons):
         m = sum(n_world[i][on].sum(0) for i, (on, _) in enumerate(ons))
-        n_pred = m / max(np.linalg.norm(m), 1e-12)
+        n_new = m / max(np.linalg.norm(m), 1e-12)
+    elif normal_from == "depth_sfm" and sfm is not None:
+        got = sfm_ground_normal(sfm[0], sfm[1], [on for on, _ in ons])
+        if got is not None:
+            n_s, sfm_points = got
+            n_new = (n + n_s) / np.linalg.norm(n + n_s)
+    if n_new is not None:
         inl = np.concatenate([unproject(np.where(on, depth[i], np.inf), K[i], c2w[i])[on]
                               for i, (on, _) in enumerate(ons)])
-        tilt_change = float(np.degrees(np.arccos(np.clip(n_pred @ n, -1.0, 1.0))))
-        n, o = n_pred, float(np.median(inl @ n_pred))
+        tilt_change = float(np.degrees(np.arccos(np.clip(n_new @ n, -1.0, 1.0))))
+        n, o = n_new, float(np.median(inl @ n_new))
         ons = [(on, plane_depth(n, o, K[i], c2w[i], h, w)) for i, (on, _) in enumerate(ons)]
         ons = [(on & np.isfinite(zp), zp) for on, zp in ons]
     support = sum(int(on.sum()) for on, _ in ons) / max(int(surface.sum()), 1)
     info = {"ground_plane": {"normal": np.round(n, 6).tolist(), "offset": round(o, 6), "inlier_fraction": round(frac, 4),
                              "support_fraction": round(support, 4), "used": support >= min_support,
-                             "normal_from": normal_from, "turned_deg": round(tilt_change, 3)}}
+                             "normal_from": normal_from, "turned_deg": round(tilt_change, 3),
+                             **({"sfm_ground_points": sfm_points} if normal_from == "depth_sfm" else {})}}
     if support < min_support:  # no plane carries the scene (e.g. a face filling the frame): leave it alone
         return depth, n_world, None, info
     depth, n_world = depth.copy(), n_world.copy()
@@ -470,11 +517,12 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     plane_info = {}
     if settings.ground_plane:
         normal_from = settings.ground_plane_normal
-        if normal_from == "auto":  # SfM points tilt the depth of a moving camera; a static one has only the estimator
-            normal_from = "predicted" if track.static else "depth"
+        if normal_from == "auto":  # SfM points tilt the ground of a moving camera; a static one has only the estimator
+            normal_from = "predicted" if track.static else "depth_sfm"
+        sfm = None if track.static else (track.points @ Q.T, track.observations)  # in the Z-up world of c2w
         depth, n_world, plane, plane_info = snap_to_ground_plane(
             depth, n_world, mask, track.K, c2w, settings.ground_plane_tol_rel, settings.ground_plane_max_tilt_deg,
-            normal_from=normal_from)
+            normal_from=normal_from, sfm=sfm)
         if plane is not None and settings.sky_beyond_ground:
             mask, plane_info["sky_pixels_cut"] = cut_sky_beyond_ground(
                 depth, n_world, mask, plane, track.K, c2w, settings.ground_plane_tol_rel,
