@@ -226,6 +226,22 @@ def test_sky_beyond_the_ground_is_cut_and_an_object_on_the_ground_is_kept():
     assert cut0 == 0 and none.all()
 
 
+def _ground_camera(tilt_deg: float):
+    """A 64x48 camera (60 deg fov, OpenCV axes) 1.5 m above z = 0 looking at (0, 2, 0), and the z-depth map of
+    the plane through the origin tilted by ``tilt_deg`` about the world y axis: (w, h, K, c2w, normal, depth)."""
+    import math
+
+    from lightcrafter.camera import intrinsics, opencv_c2w
+    from lightcrafter.recon.default import plane_depth
+
+    w, h = 64, 48
+    K = intrinsics(w, h, math.radians(60.0))
+    c2w = opencv_c2w([0.0, 0.0, 1.5], [0.0, 2.0, 0.0])
+    t = math.radians(tilt_deg)
+    n = np.array([math.sin(t), 0.0, math.cos(t)])
+    return w, h, K, c2w, n, plane_depth(n, 0.0, K, c2w, h, w)
+
+
 def test_ground_plane_turned_to_the_predicted_normals_keeps_its_pixels_and_takes_their_tilt():
     """A static camera 1.5 m above z = 0 looks down at the ground; its depth map is the ground's tilted by 6 deg
     about the view direction (what a monocular estimator guesses), its predicted normals are the true +Z with
@@ -233,15 +249,9 @@ def test_ground_plane_turned_to_the_predicted_normals_keeps_its_pixels_and_takes
     turns the plane to within 1 deg of +Z; an unknown choice is one line."""
     import math
 
-    from lightcrafter.camera import intrinsics, opencv_c2w
     from lightcrafter.recon.default import plane_depth, snap_to_ground_plane
 
-    w, h = 64, 48
-    K = intrinsics(w, h, math.radians(60.0))
-    c2w = opencv_c2w([0.0, 0.0, 1.5], [0.0, 2.0, 0.0])
-    t = math.radians(6.0)
-    n_tilted = np.array([math.sin(t), 0.0, math.cos(t)])
-    depth = plane_depth(n_tilted, 0.0, K, c2w, h, w)
+    w, h, K, c2w, n_tilted, depth = _ground_camera(6.0)
     assert np.isfinite(depth).all()
     rng = np.random.default_rng(0)
     normals = np.array([0.0, 0.0, 1.0]) + rng.normal(0, math.radians(3.0), (h, w, 3)) * [1, 1, 0]
@@ -267,20 +277,13 @@ def test_depth_sfm_ground_takes_the_mean_of_the_depths_and_the_sfm_points_tilt()
     at all, keep the depth's plane."""
     import math
 
-    from lightcrafter.camera import intrinsics, opencv_c2w
     from lightcrafter.recon.default import MIN_SFM_GROUND_POINTS, plane_depth, snap_to_ground_plane
 
-    w, h = 64, 48
-    K = intrinsics(w, h, math.radians(60.0))
-    c2w = opencv_c2w([0.0, 0.0, 1.5], [0.0, 2.0, 0.0])
-    t = math.radians(6.0)
-    n_depth = np.array([math.sin(t), 0.0, math.cos(t)])
-    depth = plane_depth(n_depth, 0.0, K, c2w, h, w)
-    s = math.radians(-2.0)
-    n_sfm = np.array([math.sin(s), 0.0, math.cos(s)])
+    w, h, K, c2w, n_depth, depth = _ground_camera(6.0)
+    *_, n_sfm, sfm_plane_depth = _ground_camera(-2.0)
     rng = np.random.default_rng(1)
     uv = np.stack([rng.uniform(0, w - 1, 60), rng.uniform(h / 2, h - 1, 60)], 1)  # lower half: the ground
-    z = plane_depth(n_sfm, 0.0, K, c2w, h, w)[np.round(uv[:, 1]).astype(int), np.round(uv[:, 0]).astype(int)]
+    z = sfm_plane_depth[np.round(uv[:, 1]).astype(int), np.round(uv[:, 0]).astype(int)]
     rays = np.linalg.inv(K) @ np.concatenate([uv.T, np.ones((1, len(uv)))])  # OpenCV camera rays, z = 1
     pts = (c2w[:3, :3] @ (rays * z)).T + c2w[:3, 3]
     pts[:8, 2] += 0.4  # points on an object standing on the ground
