@@ -297,6 +297,10 @@ def test_depth_sfm_ground_takes_the_mean_of_the_depths_and_the_sfm_points_tilt()
     assert g["normal_from"] == "depth_sfm" and g["sfm_ground_points"] == 60 and abs(g["turned_deg"] - 4.0) < 0.3
     np.testing.assert_allclose(d[0], plane_depth(n, o, K, c2w, h, w), rtol=1e-6)
     np.testing.assert_allclose(n_w[0], np.broadcast_to(n, (h, w, 3)), atol=1e-12)
-    for sfm in (None, (pts, [(uv[: MIN_SFM_GROUND_POINTS - 1], np.arange(MIN_SFM_GROUND_POINTS - 1))])):
+    steep = pts.copy()
+    steep[:, 2] += 0.8 * (steep[:, 0] - steep[:, 0].mean())  # points on a 39-deg slope: not ground
+    for sfm in (None, (pts, [(uv[: MIN_SFM_GROUND_POINTS - 1], np.arange(MIN_SFM_GROUND_POINTS - 1))]),
+                (steep, obs)):
         _, _, (n_only, _), info = snap_to_ground_plane(*args, normal_from="depth_sfm", sfm=sfm)
         assert math.degrees(math.acos(min(1.0, n_only @ n_depth))) < 0.5 and info["ground_plane"]["turned_deg"] == 0
+    assert info["ground_plane"]["sfm_plane_tilt_deg"] > 25.0

@@ -351,7 +351,8 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     guess alone (a static camera: no SfM points to fit it to), its normals may tilt the ground better;
     ``depth_sfm`` keeps the inliers too and turns the plane to the mean of the RANSAC normal and the normal of
     the SfM points seen on them (:func:`sfm_ground_normal`; ``sfm`` = (points (P, 3) in the given world,
-    per-frame observations)), two estimates whose errors differ: on the default run's 6 moving-camera train
+    per-frame observations); a points' plane beyond ``max_tilt_deg`` of +Z is not ground and is ignored,
+    info ``sfm_plane_tilt_deg``), two estimates whose errors differ: on the default run's 6 moving-camera train
     clips the ground's tilt against the truth was 5.2 deg (mean) from the depth, 7.3 from the SfM points and
     2.7 from their mean. Without ``sfm`` or enough points it is ``depth``.
     Returns (depth, n_world, plane (n, o) or None, info) with the plane n . x = o in the given world."""
@@ -381,7 +382,7 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
         on = surface[i] & np.isfinite(zp) & (np.abs(depth[i] - zp) < tol_rel * zp) & \
             ((n_world[i] @ n) > np.cos(np.radians(max_tilt_deg)))
         ons.append((on, zp))
-    tilt_change, n_new, sfm_points = 0.0, None, None
+    tilt_change, n_new, sfm_points, sfm_tilt = 0.0, None, None, None
     if normal_from == "predicted" and any(on.any() for on, _ in ons):
         m = sum(n_world[i][on].sum(0) for i, (on, _) in enumerate(ons))
         n_new = m / max(np.linalg.norm(m), 1e-12)
@@ -389,7 +390,9 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
         got = sfm_ground_normal(sfm[0], sfm[1], [on for on, _ in ons])
         if got is not None:
             n_s, sfm_points = got
-            n_new = (n + n_s) / np.linalg.norm(n + n_s)
+            sfm_tilt = round(float(np.degrees(np.arccos(np.clip(n_s[2], -1.0, 1.0)))), 3)
+            if n_s[2] >= cos_max:  # the bound the depth's plane has; points off any ground (a face) turn it far
+                n_new = (n + n_s) / np.linalg.norm(n + n_s)
     if n_new is not None:
         inl = np.concatenate([unproject(np.where(on, depth[i], np.inf), K[i], c2w[i])[on]
                               for i, (on, _) in enumerate(ons)])
@@ -401,7 +404,8 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     info = {"ground_plane": {"normal": np.round(n, 6).tolist(), "offset": round(o, 6), "inlier_fraction": round(frac, 4),
                              "support_fraction": round(support, 4), "used": support >= min_support,
                              "normal_from": normal_from, "turned_deg": round(tilt_change, 3),
-                             **({"sfm_ground_points": sfm_points} if normal_from == "depth_sfm" else {})}}
+                             **({"sfm_ground_points": sfm_points, "sfm_plane_tilt_deg": sfm_tilt}
+                                if normal_from == "depth_sfm" else {})}}
     if support < min_support:  # no plane carries the scene (e.g. a face filling the frame): leave it alone
         return depth, n_world, None, info
     depth, n_world = depth.copy(), n_world.copy()
