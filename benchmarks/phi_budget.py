@@ -120,7 +120,8 @@ def budget_rows(gt_views, phi_views, settings, scene_static: bool):
         phi_geom = c in ("cameras", "depth", "mask")
         rows.append((f"gt+phi:{c}", s_phi if phi_geom else s_gt,
                      [swap(g, p, c, ground_pixels(g.buffers)) for g, p in zip(gt_views, phi_views)]))
-        rows.append((f"phi+gt:{c}", s_phi, [swap(p, g, c, ground_pixels(g)) for g, p in zip(gt_views, phi_views)]))
+        rows.append((f"phi+gt:{c}", s_phi,
+                     [swap(p, g, c, ground_pixels(g.buffers)) for g, p in zip(gt_views, phi_views)]))
     return rows
 
 

@@ -89,3 +89,20 @@ def test_camera_swap_and_identity():
             np.testing.assert_array_equal(getattr(same, k), getattr(base.buffers, k))
     with pytest.raises(ValueError, match="component"):
         budget.swap(base, donor, "lighting")
+
+
+def test_budget_rows_name_every_component_both_ways_and_take_phis_ground_normals_only_on_the_true_ground():
+    from lightcrafter.config import effective_config
+    from lightcrafter.proxy import render_settings
+
+    gt, phi = _view(0, np.s_[0, :]), _view(1, np.s_[:, 0])
+    up = gt.buffers.normal.copy()
+    up[3:] = [0.0, 0.0, 1.0]
+    gt = FrameView(replace(gt.buffers, normal=up), gt.K, gt.c2w, gt.key)
+    rows = {name: views for name, _, views in budget.budget_rows([gt], [phi], render_settings(
+        effective_config(None)["proxy"]), True)}
+    assert {"oracle", "phi"} | {f"{d}:{c}" for c in budget.COMPONENTS for d in ("gt+phi", "phi+gt")} <= set(rows)
+    ground = ground_pixels(gt.buffers) & (phi.buffers.mask > 0)
+    np.testing.assert_array_equal(rows["gt+phi:ground_normals"][0].buffers.normal[ground], phi.buffers.normal[ground])
+    np.testing.assert_array_equal(rows["gt+phi:ground_normals"][0].buffers.normal[~ground], up[~ground])
+    np.testing.assert_array_equal(rows["phi+gt:ground_normals"][0].buffers.normal[ground], up[ground])
