@@ -15,9 +15,10 @@ Components (lightcrafter.io.Buffers and the clip's cameras): ``cameras`` (K and 
 (z-depth where both are surface), ``normals`` (world), ``ground_normals`` (the normals of the ground only:
 pixels whose ground-truth normal is within 2 degrees of world +Z, lightcrafter.recon.evaluate.ground_pixels;
 Phi snaps its ground to one plane, and that plane's tilt decides the shading of most of a frame under a low
-sun), ``albedo``, ``roughness_metallic``, ``mask`` (which pixels are surface: pixels only the donor sees take all of the donor's values there). The target
-lighting is the scene's own on synthetic pairs, so the environment map is not a Phi component here
-(real clips fit it: results/summary/reconstruction.json reports their pseudo-input error).
+sun), ``albedo``, ``roughness_metallic``, ``mask`` (which pixels are surface: pixels only the donor sees
+take all of the donor's values there). The target lighting is the scene's own on synthetic pairs, so the
+environment map is not a Phi component here (real clips fit it: results/summary/reconstruction.json reports
+their pseudo-input error).
 
 Scores are PSNR (dB) and SSIM on display values (lightcrafter.io.linear_to_display) against the Cycles
 target, means over pairs of per-frame means. Writes results/bench/phi_budget.json (the benchmark shape of
