@@ -116,13 +116,13 @@ def budget_rows(gt_views, phi_views, settings, scene_static: bool):
     s_phi = resolve_visibility(settings, scene_static, False)
     rows = [("oracle", s_gt, gt_views), ("oracle@frame", replace(s_gt, visibility="frame"), gt_views),
             ("oracle@16x", replace(s_gt, spp=settings.spp * 16), gt_views), ("phi", s_phi, phi_views)]
+    grounds = [ground_pixels(g.buffers) for g in gt_views]  # once per frame, not once per component
+    frames = list(zip(gt_views, phi_views, grounds))
     for c in COMPONENTS:
         # a mixed clip whose depth or cameras come from Phi is as inconsistent over frames as Phi's
         phi_geom = c in ("cameras", "depth", "mask")
-        rows.append((f"gt+phi:{c}", s_phi if phi_geom else s_gt,
-                     [swap(g, p, c, ground_pixels(g.buffers)) for g, p in zip(gt_views, phi_views)]))
-        rows.append((f"phi+gt:{c}", s_phi,
-                     [swap(p, g, c, ground_pixels(g.buffers)) for g, p in zip(gt_views, phi_views)]))
+        rows.append((f"gt+phi:{c}", s_phi if phi_geom else s_gt, [swap(g, p, c, gr) for g, p, gr in frames]))
+        rows.append((f"phi+gt:{c}", s_phi, [swap(p, g, c, gr) for g, p, gr in frames]))
     return rows
 
 
