@@ -121,6 +121,12 @@ def read_video_frames(frames_dir: str | Path, exposure_ev: float = 0.0) -> tuple
 DEPTH_FIT_MODES = ("scale", "affine", "planar")
 
 
+def pixel_indices(uv: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row, col) integer indices of the pixels containing OpenCV pixel-centre positions ``uv`` (M, 2),
+    clipped to an (h, w) image."""
+    return (np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1), np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1))
+
+
 def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode: str = "scale") -> np.ndarray:
     """Per-frame fits (N, 4) = (a, b, p, q) taking predicted z-depth d to the cameras' units by
     1/d' = a/d + b + p x + q y, with (x, y) = ((u - c_x)/f_x, (v - c_y)/f_y) the pixel's normalised camera
@@ -151,8 +157,7 @@ def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode
         uv, z = point_depths(track, i)
         if len(z) < min_points:
             continue
-        col = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
-        row = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
+        row, col = pixel_indices(uv, h, w)
         dp = depth_pred[i, row, col]
         ok = (z > 0) & np.isfinite(dp) & (dp > 0)
         if ok.sum() < min_points:
@@ -321,9 +326,7 @@ def sfm_ground_normal(points: np.ndarray, observations: list[tuple[np.ndarray, n
     for (uv, idx), mask in zip(observations, on):
         if len(idx) == 0:
             continue
-        h, w = mask.shape
-        col = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
-        row = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
+        row, col = pixel_indices(uv, *mask.shape)
         ids.update(np.asarray(idx)[mask[row, col]].tolist())
     if len(ids) < min_points:
         return None
