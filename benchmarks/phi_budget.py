@@ -16,7 +16,10 @@ Components (lightcrafter.io.Buffers and the clip's cameras): ``cameras`` (K and 
 pixels whose ground-truth normal is within 2 degrees of world +Z, lightcrafter.recon.evaluate.ground_pixels;
 Phi snaps its ground to one plane, and that plane's tilt decides the shading of most of a frame under a low
 sun), ``albedo``, ``roughness_metallic``, ``mask`` (which pixels are surface: pixels only the donor sees
-take all of the donor's values there). The target lighting is the scene's own on synthetic pairs, so the
+take all of the donor's values there), and ``albedo_colour``: the albedo's colour over the whole clip, the
+per-channel least-squares gain taking Phi's albedo to the truth's (lightcrafter.recon.evaluate.albedo_colour_gain;
+one video cannot tell it from the light's colour), so ``gt+phi:albedo_colour`` is the true albedo in Phi's
+colour and ``phi+gt:albedo_colour`` Phi's albedo in the true colour. The target lighting is the scene's own on synthetic pairs, so the
 environment map is not a Phi component here (real clips fit it: results/summary/reconstruction.json reports
 their pseudo-input error).
 
@@ -89,6 +92,14 @@ def swap(base: FrameView, donor: FrameView, component: str, ground: np.ndarray |
     return FrameView(out, base.K, base.c2w, f"{base.key}#{component}")
 
 
+def recolour(view: FrameView, gain: np.ndarray, tag: str) -> FrameView:
+    """``view`` with its albedo times the per-channel ``gain`` (clipped to [0, 1]); everything else kept."""
+    b = view.buffers
+    out = io.Buffers(depth=b.depth, normal=b.normal, albedo=np.clip(b.albedo * gain, 0.0, 1.0).astype(np.float32),
+                     roughness=b.roughness, metallic=b.metallic, mask=b.mask)
+    return FrameView(out, view.K, view.c2w, f"{view.key}#{tag}")
+
+
 def _display(frames, exposure_ev=0.0) -> np.ndarray:
     return np.stack([io.linear_to_display(f, exposure_ev) for f in frames])
 
@@ -110,7 +121,7 @@ def _oidn(frames: list[np.ndarray]) -> list[np.ndarray] | str:
 def budget_rows(gt_views, phi_views, settings, scene_static: bool):
     """(row name, settings, views) for every row of the budget of one clip."""
     from lightcrafter.proxy.clip import resolve_visibility
-    from lightcrafter.recon.evaluate import ground_pixels
+    from lightcrafter.recon.evaluate import albedo_colour_gain, ground_pixels
 
     s_gt = resolve_visibility(settings, scene_static, True)
     s_phi = resolve_visibility(settings, scene_static, False)
@@ -123,6 +134,12 @@ def budget_rows(gt_views, phi_views, settings, scene_static: bool):
         phi_geom = c in ("cameras", "depth", "mask")
         rows.append((f"gt+phi:{c}", s_phi if phi_geom else s_gt, [swap(g, p, c, gr) for g, p, gr in frames]))
         rows.append((f"phi+gt:{c}", s_phi, [swap(p, g, c, gr) for g, p, gr in frames]))
+    # the albedo's colour over the whole clip (the per-channel least-squares gain taking Phi's albedo to the
+    # truth's), which one video cannot tell from the light's: the truth's albedo in Phi's colour, and Phi's
+    # albedo in the truth's
+    gain = albedo_colour_gain([p.buffers for p in phi_views], [g.buffers for g in gt_views])
+    rows.append(("gt+phi:albedo_colour", s_gt, [recolour(g, 1.0 / np.maximum(gain, 1e-6), "albedo_colour") for g in gt_views]))
+    rows.append(("phi+gt:albedo_colour", s_phi, [recolour(p, gain, "albedo_colour") for p in phi_views]))
     return rows
 
 

@@ -106,3 +106,23 @@ def test_budget_rows_name_every_component_both_ways_and_take_phis_ground_normals
     np.testing.assert_array_equal(rows["gt+phi:ground_normals"][0].buffers.normal[ground], phi.buffers.normal[ground])
     np.testing.assert_array_equal(rows["gt+phi:ground_normals"][0].buffers.normal[~ground], up[~ground])
     np.testing.assert_array_equal(rows["phi+gt:ground_normals"][0].buffers.normal[ground], up[ground])
+
+
+def test_albedo_colour_rows_move_only_the_clips_albedo_colour():
+    """gt+phi:albedo_colour: the true albedo in Phi's colour (its least-squares gain undone); phi+gt:albedo_colour:
+    Phi's albedo in the true colour; nothing else changes."""
+    from lightcrafter.config import effective_config
+    from lightcrafter.proxy import render_settings
+
+    gt = _view(0, np.s_[0, :])
+    tint = np.array([0.5, 1.0, 1.5], np.float32)
+    phi = FrameView(replace(gt.buffers, albedo=gt.buffers.albedo * tint), gt.K, gt.c2w, "phi")
+    rows = {name: views for name, _, views in budget.budget_rows([gt], [phi], render_settings(
+        effective_config(None)["proxy"]), True)}
+    surf = gt.buffers.mask > 0
+    expect = np.clip(gt.buffers.albedo * tint, 0, 1)
+    np.testing.assert_allclose(rows["gt+phi:albedo_colour"][0].buffers.albedo[surf], expect[surf], rtol=1e-5)
+    np.testing.assert_allclose(rows["phi+gt:albedo_colour"][0].buffers.albedo[surf], gt.buffers.albedo[surf],
+                               rtol=1e-5, atol=1e-6)
+    for k in ("depth", "normal", "roughness", "metallic", "mask"):
+        np.testing.assert_array_equal(getattr(rows["gt+phi:albedo_colour"][0].buffers, k), getattr(gt.buffers, k))

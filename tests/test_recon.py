@@ -415,3 +415,32 @@ def test_ground_tilt_is_the_angle_of_phis_mean_normal_on_the_true_ground():
     assert ground_tilt_deg([gt], [gt]) < 1e-3
     no_ground = replace(gt, mask=np.zeros((h, w), np.float32))
     assert np.isnan(ground_tilt_deg([phi], [no_ground]))
+
+
+def test_albedo_colour_gain_recovers_a_clip_wide_tint_and_the_colour_fit_psnr_removes_only_it():
+    """Phi's albedo = the truth's under a per-channel tint (the light's colour taken into it) plus local noise:
+    the gain undoes the tint over both frames, from surface pixels of both only; the colour-fit PSNR is then
+    the noise's alone, while the raw PSNR also pays for the tint."""
+    from dataclasses import replace
+
+    from lightcrafter.recon.evaluate import albedo_colour_gain
+
+    rng = np.random.default_rng(3)
+    h, w = 8, 10
+    frames_gt, frames_phi = [], []
+    tint = np.array([0.8, 1.0, 1.25])
+    for _ in range(2):
+        a = rng.uniform(0.2, 0.7, (h, w, 3)).astype(np.float32)
+        gt = io.Buffers(depth=np.full((h, w), 2.0, np.float32), normal=np.zeros((h, w, 3), np.float32), albedo=a,
+                        roughness=np.zeros((h, w), np.float32), metallic=np.zeros((h, w), np.float32),
+                        mask=np.ones((h, w), np.float32))
+        mask = np.ones((h, w), np.float32)
+        mask[0] = 0.0  # not surface in Phi: its (garbage) albedo must not count
+        pa = (a * tint).astype(np.float32)
+        pa[0] = 5.0
+        frames_gt.append(gt)
+        frames_phi.append(replace(gt, albedo=pa, mask=mask))
+    g = albedo_colour_gain(frames_phi, frames_gt)
+    np.testing.assert_allclose(g, 1.0 / tint, rtol=1e-5)
+    assert np.all(albedo_colour_gain([replace(frames_phi[0], mask=np.zeros((h, w), np.float32))], frames_gt[:1]) == 1.0)
+

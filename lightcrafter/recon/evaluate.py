@@ -9,6 +9,11 @@ and the ground-truth clip. All errors are on the ALIGNED reconstruction (the one
   (:func:`ground_pixels`, all distinct frames): the tilt of the plane Phi snaps its ground to, which decides
   the shading of most of a frame under a low sun (NaN when no frame sees ground);
 * albedo_psnr_db: PSNR of linear albedo, peak 1; roughness_mae, metallic_mae;
+* albedo_psnr_db_colour_fit: the same after the clip's per-channel least-squares gain
+  (:func:`albedo_colour_gain`, also reported as ``albedo_colour_gain``): the albedo's error up to one colour
+  for the whole clip, which one video cannot tell from the light's colour (a pink ground under white light and
+  a grey one under pink light give the same frames); the gap to ``albedo_psnr_db`` is what the clip's colour
+  costs;
 * rotation_deg: median over frames of the angle of R_gt^T R_aligned (camera orientation error, degrees);
 * translation_m: median distance between aligned and true camera centres (metres);
 * registered_fraction: frames the SfM registered (static cameras count as registered);
@@ -43,6 +48,18 @@ def ground_tilt_deg(pred: list[io.Buffers], gt: list[io.Buffers]) -> float:
     return float(np.degrees(np.arccos(np.clip(total[2] / norm, -1.0, 1.0)))) if norm > 0 else float("nan")
 
 
+def albedo_colour_gain(pred: list[io.Buffers], gt: list[io.Buffers]) -> np.ndarray:
+    """(3,) per-channel gain g minimising the squared error of g * pred albedo against ``gt``'s (linear) over the
+    pixels that are surface in both, all frames together; ones when no pixel is (or a channel is black)."""
+    num, den = np.zeros(3), np.zeros(3)
+    for p, g in zip(pred, gt):
+        both = (p.mask > 0.5) & (g.mask > 0.5)
+        a, b = p.albedo[both].astype(np.float64), g.albedo[both].astype(np.float64)
+        num += (a * b).sum(0)
+        den += (a * a).sum(0)
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
+
+
 def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
     c = (np.trace(np.asarray(Ra).T @ np.asarray(Rb)) - 1) / 2
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
@@ -56,14 +73,19 @@ def clip_errors(est_clip, aligned_clip, gt_clip) -> dict:
     views_a, info_a = clipmod.read_clip(aligned_clip)
     views_g, info_g = clipmod.read_clip(gt_clip)
     est = clipmod.read_info(est_clip)
+    frames = list(info_g.distinct_frames)
+    gain = albedo_colour_gain([views_a[i].buffers for i in frames], [views_g[i].buffers for i in frames])
     rows = []
-    for i in info_g.distinct_frames:
+    for i in frames:
         a, g = views_a[i].buffers, views_g[i].buffers
-        rows.append(buffer_errors({"depth": a.depth, "normal": a.normal, "albedo": a.albedo, "roughness": a.roughness,
-                                   "metallic": a.metallic, "mask": a.mask}, g, None, align_depth_scale=False))
+        pred = {"depth": a.depth, "normal": a.normal, "albedo": a.albedo, "roughness": a.roughness,
+                "metallic": a.metallic, "mask": a.mask}
+        rows.append(buffer_errors(pred, g, None, align_depth_scale=False))
+        fit = buffer_errors({**pred, "albedo": np.clip(a.albedo * gain, 0.0, 1.0)}, g, None, align_depth_scale=False)
+        rows[-1]["albedo_psnr_db_colour_fit"] = fit["albedo_psnr_db"]
     keys = [k for k in rows[0] if k != "pixels"]
     out = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
-    frames = list(info_g.distinct_frames)
+    out["albedo_colour_gain"] = np.round(gain, 4).tolist()
     out["ground_tilt_deg"] = ground_tilt_deg([views_a[i].buffers for i in frames], [views_g[i].buffers for i in frames])
     rot = [rotation_angle_deg(va.c2w[:3, :3], vg.c2w[:3, :3]) for va, vg in zip(views_a, views_g)]
     trans = [float(np.linalg.norm(va.c2w[:3, 3] - vg.c2w[:3, 3])) for va, vg in zip(views_a, views_g)]
@@ -84,7 +106,7 @@ def summarize(per_clip: dict[str, dict], motions: dict[str, str]) -> dict:
     """Means per motion config and overall; counts of registered frames and skipped clips."""
     out = {"clips": len(per_clip), "skipped": {k: v["skipped"] for k, v in per_clip.items() if "skipped" in v},
            "by_motion": {}}
-    keys = ("depth_abs_rel", "normal_deg", "albedo_psnr_db", "roughness_mae", "metallic_mae", "mask_iou",
+    keys = ("depth_abs_rel", "normal_deg", "albedo_psnr_db", "albedo_psnr_db_colour_fit", "roughness_mae", "metallic_mae", "mask_iou",
             "rotation_deg", "translation_m", "registered_fraction")
     groups: dict[str, list[dict]] = {}
     for cid, e in per_clip.items():
