@@ -321,6 +321,8 @@ class Recon(Section):
         "scale", description="per-frame fit of the estimator's inverse depth to the SfM points (default backend): "
         "scale (a median ratio), affine (+ a shift), planar (+ a shift and a plane in image coordinates: turns a "
         "ground the estimator tilted to the SfM points' tilt); lightcrafter.recon.default.depth_fits")
+    mask_threshold: float = Field(0.5, gt=0.0, lt=1.0, description="default backend: the estimator's surface "
+                                  "probability above which a pixel is surface (below: the environment)")
     max_hole_fraction: NonNegativeFloat = Field(0.0, le=1.0, description="default backend: non-surface regions "
                                                 "enclosed by surface, or smaller than this fraction of the frame, are "
                                                 "holes of the estimator's mask, filled from the nearest surface pixel "

@@ -458,6 +458,7 @@ def config_settings(cfg: dict) -> dict:
         "fov_x_deg": r["fov_x_deg"] or cfg["scenes"]["fov_x_deg"],
         "normals": r["normals"],
         "depth_fit": r["depth_fit"],
+        "mask_threshold": r["mask_threshold"],
         "max_hole_fraction": r["max_hole_fraction"],
         "ground_plane": r["ground_plane"],
         "ground_plane_tol_rel": r["ground_plane_tol_rel"],
