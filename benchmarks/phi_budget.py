@@ -19,9 +19,9 @@ sun), ``albedo``, ``roughness_metallic``, ``mask`` (which pixels are surface: pi
 take all of the donor's values there), and ``albedo_colour``: the albedo's colour over the whole clip, the
 per-channel least-squares gain taking Phi's albedo to the truth's (lightcrafter.recon.evaluate.albedo_colour_gain;
 one video cannot tell it from the light's colour), so ``gt+phi:albedo_colour`` is the true albedo in Phi's
-colour and ``phi+gt:albedo_colour`` Phi's albedo in the true colour. The target lighting is the scene's own on synthetic pairs, so the
-environment map is not a Phi component here (real clips fit it: results/summary/reconstruction.json reports
-their pseudo-input error).
+colour and ``phi+gt:albedo_colour`` Phi's albedo in the true colour. The target lighting is the scene's own
+on synthetic pairs, so the environment map is not a Phi component here (real clips fit it:
+results/summary/reconstruction.json reports their pseudo-input error).
 
 Scores are PSNR (dB) and SSIM on display values (lightcrafter.io.linear_to_display) against the Cycles
 target, means over pairs of per-frame means. Writes results/bench/phi_budget.json (the benchmark shape of

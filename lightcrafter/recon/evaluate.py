@@ -106,8 +106,8 @@ def summarize(per_clip: dict[str, dict], motions: dict[str, str]) -> dict:
     """Means per motion config and overall; counts of registered frames and skipped clips."""
     out = {"clips": len(per_clip), "skipped": {k: v["skipped"] for k, v in per_clip.items() if "skipped" in v},
            "by_motion": {}}
-    keys = ("depth_abs_rel", "normal_deg", "albedo_psnr_db", "albedo_psnr_db_colour_fit", "roughness_mae", "metallic_mae", "mask_iou",
-            "rotation_deg", "translation_m", "registered_fraction")
+    keys = ("depth_abs_rel", "normal_deg", "albedo_psnr_db", "albedo_psnr_db_colour_fit", "roughness_mae",
+            "metallic_mae", "mask_iou", "rotation_deg", "translation_m", "registered_fraction")
     groups: dict[str, list[dict]] = {}
     for cid, e in per_clip.items():
         if "skipped" not in e:

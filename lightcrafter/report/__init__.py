@@ -87,7 +87,8 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
     if rec.is_file():
         r = read_json(rec)
         keys = ["motion", "clips", "rotation_deg_median", "translation_m", "registered_fraction", "depth_abs_rel",
-                "normal_deg", "ground_tilt_deg_median", "albedo_psnr_db", "albedo_psnr_db_colour_fit", "roughness_mae", "metallic_mae", "mask_iou"]
+                "normal_deg", "ground_tilt_deg_median", "albedo_psnr_db", "albedo_psnr_db_colour_fit", "roughness_mae",
+                "metallic_mae", "mask_iou"]
         parts.append(_table([{"motion": m, **v} for m, v in r.get("by_motion", {}).items()], keys))
         parts.append(f"<p>Moving-camera frames registered (skipped clips count as unregistered): "
                      f"{_fmt(r.get('moving_camera_frames_registered_incl_skipped'))}; Phi seconds per frame: "
