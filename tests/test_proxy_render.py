@@ -143,6 +143,19 @@ def test_occluder_outside_view_casts_shadow_with_aggregated_visibility():
     assert own[1][centre].mean() > 5 * agg[1][centre].mean()
 
 
+def test_a_frame_without_surface_renders_the_environment_alone():
+    """Buffers whose mask is empty everywhere (an estimator that saw no surface): every pixel is the
+    environment seen through it, for every visibility mode, instead of an error from the renderer's kernels."""
+    from dataclasses import replace
+
+    K, c2w, b = small_scene()
+    empty = replace(b, mask=np.zeros_like(b.mask), depth=np.full_like(b.depth, np.inf))
+    env = np.ones((16, 32, 3), np.float32)
+    for vis in ("aggregate", "frame", "none"):
+        img, _ = render_clip(Lighting(env=env), [FrameView(empty, K, c2w, "empty")], visibility=vis)
+        np.testing.assert_allclose(img[0], 1.0, rtol=1e-4)
+
+
 def test_material_edit_changes_only_the_mask():
     K, c2w, b = small_scene()
     mask = np.zeros(b.shape, np.float32)

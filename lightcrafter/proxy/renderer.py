@@ -237,8 +237,11 @@ class ProxyRenderer:
             grid = (g.vertices, g.faces)
         elif s.visibility == "primary":
             grid = (pm.vertices, pm.faces)
+        # a frame without surface (an estimator that saw none) has no faces: every camera ray misses and sees
+        # the environment; one dummy entry keeps the masked gathers of camera_hit off an empty array
+        face_pixel = np.maximum(pm.face_pixel, 0).astype(np.uint32) if len(pm.face_pixel) else np.zeros(1, np.uint32)
         return _Primary(scene=_scene(shapes), sensor=sensor_from_opencv(view.K, view.c2w, w, h),
-                        face_pixel=mi.UInt32(np.maximum(pm.face_pixel, 0).astype(np.uint32)),
+                        face_pixel=mi.UInt32(face_pixel),
                         attrs=attrs, fx=float(view.K[0, 0]), width=w, height=h, grid=grid)
 
     def _set_shadow(self, vertices: np.ndarray, faces: np.ndarray, key) -> None:
