@@ -94,10 +94,8 @@ def swap(base: FrameView, donor: FrameView, component: str, ground: np.ndarray |
 
 def recolour(view: FrameView, gain: np.ndarray, tag: str) -> FrameView:
     """``view`` with its albedo times the per-channel ``gain`` (clipped to [0, 1]); everything else kept."""
-    b = view.buffers
-    out = io.Buffers(depth=b.depth, normal=b.normal, albedo=np.clip(b.albedo * gain, 0.0, 1.0).astype(np.float32),
-                     roughness=b.roughness, metallic=b.metallic, mask=b.mask)
-    return FrameView(out, view.K, view.c2w, f"{view.key}#{tag}")
+    albedo = np.clip(view.buffers.albedo * gain, 0.0, 1.0).astype(np.float32)
+    return FrameView(replace(view.buffers, albedo=albedo), view.K, view.c2w, f"{view.key}#{tag}")
 
 
 def _display(frames, exposure_ev=0.0) -> np.ndarray:
@@ -138,7 +136,8 @@ def budget_rows(gt_views, phi_views, settings, scene_static: bool):
     # truth's), which one video cannot tell from the light's: the truth's albedo in Phi's colour, and Phi's
     # albedo in the truth's
     gain = albedo_colour_gain([p.buffers for p in phi_views], [g.buffers for g in gt_views])
-    rows.append(("gt+phi:albedo_colour", s_gt, [recolour(g, 1.0 / np.maximum(gain, 1e-6), "albedo_colour") for g in gt_views]))
+    undo = 1.0 / np.maximum(gain, 1e-6)
+    rows.append(("gt+phi:albedo_colour", s_gt, [recolour(g, undo, "albedo_colour") for g in gt_views]))
     rows.append(("phi+gt:albedo_colour", s_phi, [recolour(p, gain, "albedo_colour") for p in phi_views]))
     return rows
 

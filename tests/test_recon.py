@@ -417,10 +417,10 @@ def test_ground_tilt_is_the_angle_of_phis_mean_normal_on_the_true_ground():
     assert np.isnan(ground_tilt_deg([phi], [no_ground]))
 
 
-def test_albedo_colour_gain_recovers_a_clip_wide_tint_and_the_colour_fit_psnr_removes_only_it():
-    """Phi's albedo = the truth's under a per-channel tint (the light's colour taken into it) plus local noise:
-    the gain undoes the tint over both frames, from surface pixels of both only; the colour-fit PSNR is then
-    the noise's alone, while the raw PSNR also pays for the tint."""
+def test_albedo_colour_gain_undoes_a_clip_wide_tint_from_the_pixels_surface_in_both():
+    """Phi's albedo = the truth's under a per-channel tint (the light's colour taken into it), with garbage on
+    a row that is not surface in Phi: the gain undoes the tint over both frames from the other pixels alone;
+    with no pixel surface in both it is ones."""
     from dataclasses import replace
 
     from lightcrafter.recon.evaluate import albedo_colour_gain

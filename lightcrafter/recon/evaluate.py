@@ -74,10 +74,10 @@ def clip_errors(est_clip, aligned_clip, gt_clip) -> dict:
     views_g, info_g = clipmod.read_clip(gt_clip)
     est = clipmod.read_info(est_clip)
     frames = list(info_g.distinct_frames)
-    gain = albedo_colour_gain([views_a[i].buffers for i in frames], [views_g[i].buffers for i in frames])
+    pred_frames, gt_frames = [views_a[i].buffers for i in frames], [views_g[i].buffers for i in frames]
+    gain = albedo_colour_gain(pred_frames, gt_frames)
     rows = []
-    for i in frames:
-        a, g = views_a[i].buffers, views_g[i].buffers
+    for a, g in zip(pred_frames, gt_frames):
         pred = {"depth": a.depth, "normal": a.normal, "albedo": a.albedo, "roughness": a.roughness,
                 "metallic": a.metallic, "mask": a.mask}
         rows.append(buffer_errors(pred, g, None, align_depth_scale=False))
@@ -86,7 +86,7 @@ def clip_errors(est_clip, aligned_clip, gt_clip) -> dict:
     keys = [k for k in rows[0] if k != "pixels"]
     out = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
     out["albedo_colour_gain"] = np.round(gain, 4).tolist()
-    out["ground_tilt_deg"] = ground_tilt_deg([views_a[i].buffers for i in frames], [views_g[i].buffers for i in frames])
+    out["ground_tilt_deg"] = ground_tilt_deg(pred_frames, gt_frames)
     rot = [rotation_angle_deg(va.c2w[:3, :3], vg.c2w[:3, :3]) for va, vg in zip(views_a, views_g)]
     trans = [float(np.linalg.norm(va.c2w[:3, 3] - vg.c2w[:3, 3])) for va, vg in zip(views_a, views_g)]
     phi = est.manifest.get("phi", {})
