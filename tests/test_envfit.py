@@ -18,6 +18,7 @@ from lightcrafter.clip import read_clip, write_clip
 from lightcrafter.envfit import synthetic as es
 from lightcrafter.envfit.evaluate import TrueObjective, sh_error
 from lightcrafter.envfit.fit import FitSettings, data_weights, fit_envmap, optimize, prepare
+from lightcrafter.envfit.response import GAMMA_MAX, GAMMA_MIN, CameraResponse, fit_response
 from lightcrafter.envfit.model import LOG_FLOOR_REL, EnvParams, MapHead, l1_tonemapped, log_of_map, tv_log
 from lightcrafter.envfit.tracing import Tracer, bilinear_taps
 from lightcrafter.envfit.transport import build_transport, memory_bound_bytes
@@ -377,6 +378,50 @@ def test_fit_envmap_outputs_render_with_R_and_rerun_is_skipped(scene, tmp_path):
     m3 = fit_envmap(scene["clip"], scene["frames_dir"], out, replace(s, iterations=60), render)
     assert m3["fingerprint"] != m["fingerprint"]
     assert len(json.loads((out / "loss_curve.json").read_text())["points"]) == 60
+
+
+def test_camera_response_fit_recovers_a_known_tone_curve():
+    rng = np.random.default_rng(3)
+    rendered = [rng.uniform(0.0, 1.5, size=(4000, 3)).astype(np.float32) for _ in range(3)]
+    truth = CameraResponse(gamma=1.7, gain_rgb=(2.0, 1.6, 1.1))
+    observed = [truth.apply(r) for r in rendered]
+    got, stats = fit_response(rendered, observed)
+    assert got.gamma == pytest.approx(1.7, rel=0.02)
+    np.testing.assert_allclose(got.gain_rgb, truth.gain_rgb, rtol=0.03)
+    assert stats["display_rmse_after"] < 0.1 * stats["display_rmse_before"]
+    # a video that already is the render: the identity (nothing to gain), and no lit pixel: the identity
+    same, _ = fit_response(rendered, rendered)
+    assert same.gamma == pytest.approx(1.0, abs=0.01) and np.allclose(same.gain_rgb, 1.0, atol=0.01)
+    black, why = fit_response([np.zeros((10, 3))], [np.zeros((10, 3))])
+    assert black.is_identity and "no lit pixel" in why["note"]
+    # extreme values stay finite and the curve stays within its bounds
+    wild, _ = fit_response([np.full((50, 3), 1e4)], [np.full((50, 3), 1e-6)])
+    assert GAMMA_MIN <= wild.gamma <= GAMMA_MAX and np.isfinite(wild.apply(np.full((2, 3), 1e4))).all()
+
+
+def test_pseudo_input_through_the_fitted_camera_response(scene, tmp_path):
+    """A video whose camera applied a tone curve: with ``fit_response`` the pseudo-input is rendered
+    through the curve fitted after the map, closer to the video, and the curve is recorded in both manifests."""
+    curve = CameraResponse(gamma=1.8, gain_rgb=(1.5, 1.5, 1.5))
+    frames = video_dir(tmp_path / "toned", [curve.apply(f) for f in scene["frames"]])
+    s = FitSettings(iterations=150, lr=1e-2, **QUICK)
+    render = RenderSettings(spp=4)
+    plain = fit_envmap(scene["clip"], frames, tmp_path / "plain", s, render)
+    toned = fit_envmap(scene["clip"], frames, tmp_path / "toned_fit", replace(s, fit_response=True), render)
+    assert "response" not in plain["fit"]
+    got = toned["fit"]["response"]
+    # the map, fitted first, takes part of the curve (measured: gamma 1.17, +0.34 dB); the rest goes to the curve
+    assert 1.05 < got["gamma"] < 1.8 and got["display_rmse_after"] < got["display_rmse_before"]
+    assert toned["pseudo_psnr_db"]["mean"] > plain["pseudo_psnr_db"]["mean"] + 0.15
+    pseudo = json.loads((tmp_path / "toned_fit" / "pseudo.json").read_text())
+    assert pseudo["response"]["gamma"] == got["gamma"]
+    # the frames on disk are R's render through the recorded curve
+    views, _ = read_clip(scene["clip"])
+    r = ProxyRenderer(lighting_from_file(tmp_path / "toned_fit" / "lighting.json"), render)
+    r.prepare(views)
+    expect = CameraResponse(got["gamma"], tuple(got["gain_rgb"])).apply(r.render(views[2], frame=2))
+    np.testing.assert_allclose(io.read_rgb_exr(tmp_path / "toned_fit" / "pseudo" / "0002.exr"), expect,
+                               rtol=2.0**-10, atol=1e-5)
 
 
 def test_killed_fit_resumes_from_its_checkpoint(scene, tmp_path):

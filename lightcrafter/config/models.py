@@ -442,6 +442,9 @@ class Envfit(Section):
     transport_spp: PositiveInt = Field(64, description="fast solver lanes per pixel")
     transport_pixels: NonNegativeInt = Field(2048, description="fast solver pixels per fitted frame (0 = all)")
     checkpoint_every: NonNegativeInt = Field(200, description="iterations between checkpoints (0 = off)")
+    fit_response: bool = Field(False, description="after the map, fit the camera's tone curve (gamma and channel "
+                               "gains, lightcrafter.envfit.response) and render the pseudo-input through it; not "
+                               "in the paper")
 
 
 # ----------------------------------------------------------------------------- long form, edits, evaluation

@@ -25,7 +25,9 @@ Outputs of :func:`fit_envmap` (``out_dir``)::
     loss_curve.json   [{iteration, seconds, loss}]: each iteration's own objective estimate (its
                       sampled frame), seconds since the fit started (set-up included)
     pseudo/####.exr   R(S, L_hat) for ALL frames, rendered by lightcrafter.proxy.clip.render_clip with
-    pseudo.mp4/.json  lighting.json (standard renderer, resumable frames)
+    pseudo.mp4/.json  lighting.json (standard renderer, resumable frames); with ``fit_response``, through
+                      the camera response fitted on the fitted frames (:mod:`.response`, recorded in
+                      fit.json and pseudo.json)
     fit.json          manifest, written last (the declared output of a workflow rule)
 
 Every file is written atomically. A killed fit resumes: the optimiser state is checkpointed every
@@ -81,7 +83,9 @@ class FitSettings:
     * use_background: fit the background pixels R shows (with R's show_background);
     * ref_spp, ref_pixels: reference lanes per pixel and pixels per iteration (0 = all used pixels);
     * transport_spp, transport_pixels: fast solver's lanes per pixel and pixels per fitted frame (0 = all);
-    * threads: Dr.Jit threads (None = its default); checkpoint_every: iterations between checkpoints (0 = off).
+    * threads: Dr.Jit threads (None = its default); checkpoint_every: iterations between checkpoints (0 = off);
+    * fit_response: after the map, fit the camera's tone curve (:mod:`.response`) on the fitted frames and
+      render the pseudo-input through it (not in the paper; off by default).
     """
 
     solver: str = "fast"
@@ -107,6 +111,7 @@ class FitSettings:
     transport_pixels: int = 2048
     threads: int | None = None
     checkpoint_every: int = 200
+    fit_response: bool = False
 
     def fingerprint_dict(self) -> dict:
         d = asdict(self)
@@ -319,6 +324,30 @@ def _optimize(problem, settings, checkpoint, fingerprint, snapshot, snapshot_at,
 
 
 # ----------------------------------------------------------------------------- outputs
+def fit_camera_response(problem: Problem, lighting_path: Path, seed: int = 0):
+    """R renders the fitted frames under the fitted map (the same renderer settings and visibility as
+    the pseudo-input) and :func:`.response.fit_response` fits the tone curve from them to the video
+    on their used pixels. Returns (CameraResponse, stats with the seconds it took)."""
+    from lightcrafter.proxy.lighting import lighting_from_file
+    from lightcrafter.proxy.renderer import ProxyRenderer
+
+    from .response import fit_response
+
+    t0 = time.perf_counter()
+    renderer = ProxyRenderer(lighting_from_file(lighting_path), problem.render)
+    if problem.render.visibility in ("aggregate", "auto"):
+        renderer.share_visibility(problem.tracer.renderer)
+    else:
+        renderer.prepare(problem.views)
+    rendered, observed = [], []
+    for i in problem.video.fitted:
+        frame = renderer.render(problem.views[i], frame=i)
+        rendered.append(frame.reshape(-1, 3)[problem.video.used[i]])
+        observed.append(problem.video.observed(i))
+    response, stats = fit_response(rendered, observed, seed=seed)
+    return response, {**stats, "seconds": round(time.perf_counter() - t0, 3)}
+
+
 def _digest_array(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a, np.float32).tobytes()).hexdigest()[:16]
 
@@ -397,13 +426,18 @@ def fit_envmap(clip: str | Path, frames_dir: str | Path, out_dir: str | Path, se
     from lightcrafter.proxy.lighting import write_lighting_file
 
     write_lighting_file(out_dir / "lighting.json", env="envmap.exr", extra={"fit": fit_info})
+    response = None
+    if settings.fit_response:
+        response, response_stats = fit_camera_response(problem, out_dir / "lighting.json", settings.seed)
+        fit_info["response"] = {**response.as_dict(), **response_stats}
     files = {"envmap": "envmap.exr", "lighting": "lighting.json", "params": "params.npz",
              "loss_curve": "loss_curve.json"}
     pseudo = None
     if render_pseudo:
         pseudo = render_clip(problem.info.root, out_dir / "lighting.json", out_dir / "pseudo", settings=render,
                              extra={"kind": "real_pseudo_input", **(extra or {})},
-                             visibility_from=problem.tracer.renderer)  # same clip, same geometry settings
+                             visibility_from=problem.tracer.renderer,  # same clip, same geometry settings
+                             response=response)
         from lightcrafter.metrics import display_psnr_db
 
         frames = [io.read_rgb_exr(out_dir / f) for f in pseudo["frames"]]

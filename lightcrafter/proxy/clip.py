@@ -50,12 +50,15 @@ def _complete(shape):
 
 def render_views(views: list[FrameView], lighting: Lighting, settings: RenderSettings, out_dir: Path,
                  edits: list[MaterialEdit] = (), cache: bool = True,
-                 inputs=None, visibility_from: ProxyRenderer | None = None) -> tuple[list[np.ndarray], ProxyRenderer, float]:
+                 inputs=None, visibility_from: ProxyRenderer | None = None,
+                 response=None) -> tuple[list[np.ndarray], ProxyRenderer, float]:
     """Render (or reuse complete) frames into ``out_dir``; returns (frames, renderer, render seconds).
 
     ``inputs`` (JSON-able) names what the frames come from: frames of other inputs are re-rendered.
     ``visibility_from``: a renderer already prepared on these views with the same geometry settings
     (its clip visibility mesh is reused instead of rebuilt; the frames are the same).
+    ``response``: a camera response (``apply(rgb) -> rgb``, e.g. lightcrafter.envfit.response) applied
+    to every frame before it is written; it must be part of ``inputs``.
     """
     if edits:
         views = [FrameView(apply_edits(v.buffers, edits), v.K, v.c2w, v.key + "#edited") for v in views]
@@ -70,18 +73,20 @@ def render_views(views: list[FrameView], lighting: Lighting, settings: RenderSet
         else:
             renderer.prepare(views)
         for i in todo:
-            io.write_frame_exr(folder.path(i), renderer.render(views[i], frame=i))
+            frame = renderer.render(views[i], frame=i)
+            io.write_frame_exr(folder.path(i), frame if response is None else response.apply(frame))
     seconds = time.perf_counter() - t0
     return [io.read_rgb_exr(folder.path(i)) for i in range(len(views))], renderer, seconds
 
 
 def render_clip(clip: str | Path, lighting: Lighting | str | Path, out_dir: str | Path, *,
                 settings: RenderSettings = RenderSettings(), edits: list[MaterialEdit] = (),
-                extra: dict | None = None, visibility_from: ProxyRenderer | None = None) -> dict:
+                extra: dict | None = None, visibility_from: ProxyRenderer | None = None, response=None) -> dict:
     """Render every frame of ``clip`` (folder or its buffers.json) under ``lighting``; return the manifest.
 
     Visibility 'auto' follows the clip's own ``scene_static`` flag. ``extra`` is copied into the manifest
-    (scene id, trajectory, light id, pair kind ...). ``visibility_from``: see :func:`render_views`.
+    (scene id, trajectory, light id, pair kind ...). ``visibility_from``, ``response`` (a camera
+    response with ``apply`` and ``as_dict``, recorded in the manifest): see :func:`render_views`.
     """
     out_dir = Path(out_dir)
     views, info = read_clip(clip)
@@ -98,8 +103,10 @@ def render_clip(clip: str | Path, lighting: Lighting | str | Path, out_dir: str 
     # Frames of other inputs (a re-made clip, another lighting or settings) are never reused.
     inputs = {"what": "proxy", "clip": clipmod.identity(info.root), "lighting": lighting_identity(lighting),
               "settings": _settings_dict(settings), "edits": [_edit_identity(e) for e in edits]}
+    if response is not None:
+        inputs["response"] = response.as_dict()
     frames, renderer, seconds = render_views(views, lighting, settings, out_dir, edits, inputs=inputs,
-                                             visibility_from=None if edits else visibility_from)
+                                             visibility_from=None if edits else visibility_from, response=response)
     preview = out_dir.with_suffix(".mp4")
     io.write_video(preview, io.to_uint8(io.linear_to_display(np.stack(frames))), fps=info.fps)
     h, w = frames[0].shape[:2]
@@ -107,11 +114,14 @@ def render_clip(clip: str | Path, lighting: Lighting | str | Path, out_dir: str 
         "format": "lightcrafter.proxy/1",
         "width": w, "height": h, "num_frames": len(frames), "fps": info.fps,
         "frames": [f"{out_dir.name}/{i:04d}.exr" for i in range(len(frames))],
-        "preview": preview.name, "radiance": "linear scene-referred (no view transform)",
+        "preview": preview.name,
+        "radiance": ("linear scene-referred (no view transform)" if response is None
+                     else "linear, through the fitted camera response (see 'response')"),
         "clip": str(clipmod.manifest_path(info.root)), "lighting": lighting_src,
         "render": {"engine": "mitsuba", "renderer": "lightcrafter.proxy", **_settings_dict(settings),
                    "edits": len(edits)},
         "stats": {**asdict(renderer.stats), "render_seconds": round(seconds, 3)},
+        **({} if response is None else {"response": response.as_dict()}),
         **(extra or {}),
     }
     io.write_json(out_dir.with_suffix(".json"), manifest)
