@@ -18,8 +18,9 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-ORDER = ["cycles_spp", "cycles_device", "proxy_spp", "proxy_vs_cycles", "envfit", "recon_error", "sfm_settings",
-         "estimator_weights", "phi_budget", "refiner", "refiner_clean_buffers", "refiner_scale", "dag_scale", "storage"]
+ORDER = ["cycles_spp", "cycles_device", "proxy_spp", "proxy_vs_cycles", "envfit", "envfit_response", "recon_error",
+         "sfm_settings", "estimator_weights", "phi_budget", "refiner", "refiner_clean_buffers", "refiner_scale",
+         "dag_scale", "storage"]
 # Benchmarks make bench does not run, and why (it lists them; tests/test_workflow_dag.py checks that every
 # benchmarks/*.py is in ORDER or here).
 NOT_IN_BENCH = {
@@ -32,6 +33,7 @@ NOT_IN_BENCH = {
 NEEDS_PIPELINE = {"proxy_vs_cycles": "ground_truth",
                   "refiner_clean_buffers": "results/datasets/clean_buffers/pairs.jsonl",
                   "refiner_scale": "results/datasets/full/pairs.jsonl", "storage": "pairs", "phi_budget": "all",
+                  "envfit_response": "all",
                   "sfm_settings": "ground_truth", "estimator_weights": "ground_truth"}
 
 

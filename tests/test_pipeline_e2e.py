@@ -154,3 +154,30 @@ def test_estimator_weights_benchmark_scores_each_weights_file_on_train_and_test_
     assert got[("shipped", "test_normal_deg")] != got[("own", "test_normal_deg")]
     with pytest.raises(DataError, match="name a commit that shipped weights"):
         bench.main(["--results", str(e2e_run / "results"), "--weights", "old=git:no-such-rev", "--out", str(out)])
+
+
+def test_envfit_response_benchmark_scores_real_clips_and_a_synthetic_control(e2e_run, tmp_path):
+    """benchmarks/envfit_response.py on the run: each real clip and each train split's synthetic clip get the
+    pseudo-input's PSNR without and with the fitted camera curve; the curve never makes the fitted frames worse."""
+    import importlib.util
+    import math
+
+    spec = importlib.util.spec_from_file_location("envfit_response", REPO / "benchmarks" / "envfit_response.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "er.json"
+    assert bench.main(["--results", str(e2e_run / "results"), "--config", CI_CONFIG, "--split", "train",
+                       "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    kinds = {r["kind"] for r in res["clips"]}
+    assert kinds == {"real", "synthetic control"}
+    real = {r["clip"]: r for r in res["clips"] if r["kind"] == "real"}
+    fits = {p.parent.name for p in (e2e_run / "results" / "envfit").glob("*/fit.json")
+            if "skipped" not in json.loads(p.read_text())}
+    assert set(real) == fits
+    for r in res["clips"]:
+        assert math.isfinite(r["psnr_db_without"]) and math.isfinite(r["psnr_db_with"])
+        assert 0.5 <= r["gamma"] <= 3.0
+    for clip, r in real.items():  # the run's own pseudo-input is the benchmark's "with"
+        fit = json.loads((e2e_run / "results" / "envfit" / clip / "fit.json").read_text())
+        assert fit["pseudo_psnr_db"]["mean"] == pytest.approx(r["psnr_db_with"], abs=0.05)
