@@ -211,3 +211,18 @@ def test_artifacts_section_puts_each_method_beside_the_target():
     html = artifacts_section(evals)
     assert "Refined (LightCrafter)" in html and "target" in html and "2.4" in html and "3.2" in html
     assert "not computed" in artifacts_section({("full", "synthetic"): {"methods": ["proxy"], "mean": {}}})
+
+
+def test_real_clips_show_their_pseudo_input_score_and_camera_curve(tmp_path):
+    r = _results(tmp_path)
+    (r / "summary" / "reconstruction.json").write_text(json.dumps(
+        {"by_motion": {}, "real": {"clipA": {"camera_method": "sfm", "registered": 13, "frames": 13},
+                                   "clipB": {"camera_method": "static", "registered": 13, "frames": 13}}}))
+    (r / "envfit" / "clipA").mkdir(parents=True)
+    (r / "envfit" / "clipA" / "fit.json").write_text(json.dumps(
+        {"pseudo_psnr_db": {"mean": 19.25, "per_frame": [19.25]}, "fit": {"response": {"gamma": 1.6}}}))
+    html = build_report(r, tmp_path / "logs").read_text()
+    row_a = html.split("<td>clipA</td>")[1].split("</tr>")[0]
+    row_b = html.split("<td>clipB</td>")[1].split("</tr>")[0]
+    assert "<td>19.25</td>" in row_a and "<td>1.6</td>" in row_a
+    assert "19.25" not in row_b  # a clip not fitted shows no score

@@ -41,6 +41,18 @@ from .tables import (ORDERINGS, _ordering_checks, _selection_section, _table1_ro
                      tables_markdown)
 
 
+def _pseudo_input_scores(results: Path, clip: str) -> dict:
+    """The envmap fit's pseudo-input PSNR against the video (dB) and fitted camera gamma of a real clip."""
+    fit = results / "envfit" / clip / "fit.json"
+    try:
+        m = read_json(fit)
+    except Exception:  # noqa: BLE001 - a clip not fitted (yet): no scores
+        return {}
+    psnr = m.get("pseudo_psnr_db") or {}
+    return {"pseudo_input_psnr_db": psnr.get("mean"),
+            "camera_gamma": ((m.get("fit") or {}).get("response") or {}).get("gamma")}
+
+
 def build_report(results_dir: str | Path = "results", logs_dir: str | Path | None = None,
                  projection: dict | None = None) -> Path:
     """Write ``results/report/index.html`` from whatever the run and the benchmarks produced."""
@@ -97,9 +109,11 @@ def build_report(results_dir: str | Path = "results", logs_dir: str | Path | Non
             parts.append("<p>Left out by Phi:</p>" + _table([{"clip": k, "reason": v} for k, v in r["skipped"].items()],
                                                              ["clip", "reason"]))
         if r.get("real"):
-            parts.append("<p>Real clips:</p>" + _table([{"clip": k, **v} for k, v in r["real"].items()],
-                                                       ["clip", "camera_method", "registered", "frames", "camera_static",
-                                                        "seconds", "skipped"]))
+            parts.append("<p>Real clips (pseudo-input: R under the fitted map, and the fitted camera curve where "
+                         "<code>envfit.fit_response</code> is on, against the video, display PSNR):</p>"
+                         + _table([{"clip": k, **v, **_pseudo_input_scores(results, k)} for k, v in r["real"].items()],
+                                  ["clip", "camera_method", "registered", "frames", "camera_static", "seconds",
+                                   "pseudo_input_psnr_db", "camera_gamma", "skipped"]))
     else:
         parts.append(_not_computed("reconstruction summary", f"{rec} missing"))
     parts.append(_budget_section(results))
