@@ -13,7 +13,8 @@ by least squares on display values (the space the pseudo-input is scored in,
 fit did not use are not looked at. gamma is bounded to [GAMMA_MIN, GAMMA_MAX]. The map, fitted first
 with no curve, takes part of a camera's curve (tests: a video through gamma 1.8 gives 1.17), so gamma is
 what the map could not explain, not the camera's own curve; it also takes any global contrast error of
-Phi's buffers (on Cycles clips, which have no camera curve, Phi's buffers gave 1.01-1.18; README).
+Phi's buffers (on the default's 9 train Cycles clips, which have no camera curve, 0.98-1.44, median
+1.13: benchmarks/envfit_response.py, README).
 """
 
 from __future__ import annotations
@@ -56,8 +57,10 @@ def fit_response(rendered: list[np.ndarray], observed: list[np.ndarray], max_pix
 
     from lightcrafter.io import linear_to_display
 
-    pred = np.concatenate([np.asarray(r, np.float64).reshape(-1, 3) for r in rendered]) if rendered else np.zeros((0, 3))
-    obs = np.concatenate([np.asarray(o, np.float64).reshape(-1, 3) for o in observed]) if observed else np.zeros((0, 3))
+    def stack(arrays):
+        return np.concatenate([np.asarray(x, np.float64).reshape(-1, 3) for x in arrays]) if arrays else np.zeros((0, 3))
+
+    pred, obs = stack(rendered), stack(observed)
     if pred.shape != obs.shape:
         raise ValueError(f"fit_response: {pred.shape} rendered values for {obs.shape} observed")
     keep = np.isfinite(pred).all(axis=1) & np.isfinite(obs).all(axis=1) & (pred.max(axis=1) > 0)
