@@ -12,6 +12,7 @@ rule dataset:
         "logs/dataset/{variant}.log",
     benchmark:
         "logs/benchmark/dataset/{variant}.tsv"
+    priority: variant_priority
     conda:
         "../../envs/refiner.yaml"
     threads: 1

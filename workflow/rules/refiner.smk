@@ -31,6 +31,7 @@ rule train_refiner:
         "logs/refiner/train_{variant}.log",
     benchmark:
         "logs/benchmark/refiner/train_{variant}.tsv"
+    priority: variant_priority
     conda:
         "../../envs/refiner.yaml"
     threads: refiner_threads()
