@@ -58,7 +58,9 @@ def fit_response(rendered: list[np.ndarray], observed: list[np.ndarray], max_pix
     from lightcrafter.io import linear_to_display
 
     def stack(arrays):
-        return np.concatenate([np.asarray(x, np.float64).reshape(-1, 3) for x in arrays]) if arrays else np.zeros((0, 3))
+        if not arrays:
+            return np.zeros((0, 3))
+        return np.concatenate([np.asarray(x, np.float64).reshape(-1, 3) for x in arrays])
 
     pred, obs = stack(rendered), stack(observed)
     if pred.shape != obs.shape:
