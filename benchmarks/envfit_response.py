@@ -83,20 +83,16 @@ def main(argv: list[str] | None = None) -> int:
             row.update(score(clip_dir.parent, Path(L.real_frames(name)), settings, render, Path(tmp) / name))
             rows.append(row)
             print(row, flush=True)
-        for sp in sorted(Path(a.results, "scenes").glob("*/scene.json")):
-            spec = io.read_json(sp)
-            if spec.get("split") != a.split:
+        for spec, t in L.split_trajectories(a.split):
+            sid, tid = spec["scene_id"], t["id"]
+            clip = Path(L.recon_clip("synthetic", f"{sid}_{tid}"))
+            if not (clip / "buffers.json").is_file() or is_skipped(clip):
                 continue
-            for t in spec["trajectories"]:
-                sid, tid = spec["scene_id"], t["id"]
-                clip = Path(L.recon_clip("synthetic", f"{sid}_{tid}"))
-                if not (clip / "buffers.json").is_file() or is_skipped(clip):
-                    continue
-                row = {"clip": f"{sid}_{tid}_{t['source_light']}", "kind": "synthetic control", "split": a.split}
-                row.update(score(clip, Path(L.gt_rgb(sid, tid, t["source_light"])), settings, render,
-                                 Path(tmp) / row["clip"]))
-                rows.append(row)
-                print(row, flush=True)
+            row = {"clip": f"{sid}_{tid}_{t['source_light']}", "kind": "synthetic control", "split": a.split}
+            row.update(score(clip, Path(L.gt_rgb(sid, tid, t["source_light"])), settings, render,
+                             Path(tmp) / row["clip"]))
+            rows.append(row)
+            print(row, flush=True)
     if not rows:
         raise SystemExit(f"error: {a.results} has no real clip and no {a.split} synthetic clip; run the pipeline first")
     summary = {}

@@ -35,6 +35,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from lightcrafter import io  # noqa: E402
+from lightcrafter.layout import Layout  # noqa: E402
 
 ERRORS = ("albedo_psnr_db", "normal_deg", "depth_abs_rel", "roughness_mae", "metallic_mae", "mask_iou")
 SHIPPED_IN_GIT = "lightcrafter/recon/weights/gbuffer_estimator.pt"
@@ -65,19 +66,15 @@ def split_frames(results: Path, split: str) -> list[tuple[np.ndarray, io.Buffers
     from lightcrafter.recon import estimator as est
 
     frames = []
-    for spec_file in sorted((results / "scenes").glob("*/scene.json")):
-        spec = io.read_json(spec_file)
-        if spec.get("split") != split:
-            continue
-        for t in spec["trajectories"]:
-            clip = results / "gt" / spec_file.parent.name / t["id"]
-            video = clip / "rgb" / t["source_light"]
-            if not (clip / "buffers.json").is_file() or not video.is_dir():
-                raise io.DataError(f"{clip}: ground truth not rendered; run `snakemake ground_truth` first")
-            views, _ = read_clip(clip)
-            samples = est.load_clip_samples(clip, video)
-            frames += [(s.rgb.numpy().transpose(1, 2, 0), views[i].buffers, views[i].c2w)
-                       for i, s in enumerate(samples)][::2]
+    for spec, t in Layout(str(results)).split_trajectories(split):
+        clip = results / "gt" / spec["scene_id"] / t["id"]
+        video = clip / "rgb" / t["source_light"]
+        if not (clip / "buffers.json").is_file() or not video.is_dir():
+            raise io.DataError(f"{clip}: ground truth not rendered; run `snakemake ground_truth` first")
+        views, _ = read_clip(clip)
+        samples = est.load_clip_samples(clip, video)
+        frames += [(s.rgb.numpy().transpose(1, 2, 0), views[i].buffers, views[i].c2w)
+                   for i, s in enumerate(samples)][::2]
     return frames
 
 

@@ -164,15 +164,7 @@ def main() -> int:
     out = a.out or a.results / "bench" / "phi_budget.json"
     cfg = _run_config(a)
     settings = render_settings(cfg["proxy"])
-    specs = sorted(Path(a.results, "scenes").glob("*/scene.json"))
-    pairs = []
-    for sp in specs:
-        spec = io.read_json(sp)
-        if spec.get("split") != a.split:
-            continue
-        for t in spec["trajectories"]:
-            for light in t.get("target_lights", []):
-                pairs.append((spec, t, light))
+    pairs = [(spec, t, light) for spec, t in L.split_trajectories(a.split) for light in t.get("target_lights", [])]
     pairs = pairs[: a.max_pairs] if a.max_pairs else pairs
     if not pairs:
         raise SystemExit(f"error: no {a.split} pairs under {a.results}/scenes; run the default target first (make run)")

@@ -93,33 +93,29 @@ def main() -> int:
     trials = json.loads(a.trials) if a.trials else DEFAULT_TRIALS
     L = Layout(str(a.results))
     per_trial: dict[str, list[dict]] = {name: [] for name in trials}
-    for sp in sorted(Path(a.results, "scenes").glob("*/scene.json")):
-        spec = io.read_json(sp)
-        if spec.get("split") != a.split:
-            continue
-        for t in spec["trajectories"]:
-            sid, tid = spec["scene_id"], t["id"]
-            gt, _ = read_clip(L.gt_clip(sid, tid))
-            gt_c2w = np.stack([g.c2w for g in gt])
-            if np.abs(gt_c2w - gt_c2w[0]).max() < 1e-9:
-                continue  # static camera: nothing for SfM to register
-            _, u8 = read_video_frames(L.gt_rgb(sid, tid, t["source_light"]))
-            for name, over in trials.items():
-                t0 = time.perf_counter()
-                row = {"clip": f"{sid}_{tid}", "frames": len(u8)}
-                try:
-                    track = estimate_cameras(u8, np.radians(fov_deg), SfMSettings(**{**base, **over}),
-                                             name=f"{sid}_{tid}")
-                    row.update(registered=int(track.registered.sum()),
-                               rotation_deg=float(np.median(rotation_errors_deg(track.c2w, gt_c2w))),
-                               static_detected=bool(track.static))
-                except ReconstructionError as exc:
-                    row.update(registered=0, rotation_deg=None, error=str(exc))
-                row["seconds"] = round(time.perf_counter() - t0, 2)
-                per_trial[name].append(row)
-                rot = "failed" if row["rotation_deg"] is None else f"{row['rotation_deg']:.2f} deg"
-                print(f"{row['clip']} {name}: {row['registered']}/{row['frames']} registered, {rot}, "
-                      f"{row['seconds']:.1f} s", flush=True)
+    for spec, t in L.split_trajectories(a.split):
+        sid, tid = spec["scene_id"], t["id"]
+        gt, _ = read_clip(L.gt_clip(sid, tid))
+        gt_c2w = np.stack([g.c2w for g in gt])
+        if np.abs(gt_c2w - gt_c2w[0]).max() < 1e-9:
+            continue  # static camera: nothing for SfM to register
+        _, u8 = read_video_frames(L.gt_rgb(sid, tid, t["source_light"]))
+        for name, over in trials.items():
+            t0 = time.perf_counter()
+            row = {"clip": f"{sid}_{tid}", "frames": len(u8)}
+            try:
+                track = estimate_cameras(u8, np.radians(fov_deg), SfMSettings(**{**base, **over}),
+                                         name=f"{sid}_{tid}")
+                row.update(registered=int(track.registered.sum()),
+                           rotation_deg=float(np.median(rotation_errors_deg(track.c2w, gt_c2w))),
+                           static_detected=bool(track.static))
+            except ReconstructionError as exc:
+                row.update(registered=0, rotation_deg=None, error=str(exc))
+            row["seconds"] = round(time.perf_counter() - t0, 2)
+            per_trial[name].append(row)
+            rot = "failed" if row["rotation_deg"] is None else f"{row['rotation_deg']:.2f} deg"
+            print(f"{row['clip']} {name}: {row['registered']}/{row['frames']} registered, {rot}, "
+                  f"{row['seconds']:.1f} s", flush=True)
     if not any(per_trial.values()):
         raise SystemExit(f"error: no moving-camera {a.split} clips under {a.results}/scenes; run the default target "
                          "first (make run) or choose another --split")

@@ -27,6 +27,18 @@ class Layout:
     def scene_spec(self, scene) -> str:
         return self._p("scenes", scene, "scene.json")
 
+    def split_trajectories(self, split: str) -> list[tuple[dict, dict]]:
+        """(scene spec, trajectory) of every trajectory of the written scene specs of ``split``, in scene-id
+        order (for the benchmarks that read a finished run)."""
+        from lightcrafter.io import read_json
+
+        out = []
+        for spec_file in sorted(Path(self.root, "scenes").glob("*/scene.json")):
+            spec = read_json(spec_file)
+            if spec.get("split") == split:
+                out += [(spec, t) for t in spec["trajectories"]]
+        return out
+
     # ground truth (Blender): a clip per trajectory, radiance per lighting
     def gt_clip(self, scene, traj) -> str:
         return self._p("gt", scene, traj)
