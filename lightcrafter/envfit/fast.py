@@ -15,6 +15,8 @@ Deterministic: same inputs and seed give bit-identical fits.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 
@@ -84,6 +86,12 @@ class FastObjective:
         return total
 
 
+def sample_key(view) -> tuple:
+    """What seeds a view's pixel sample: the file name of its buffers, K and c2w, not the folder the clip lies
+    in, so the same clip gives the same fit from any results folder (relative or absolute path)."""
+    return (Path(view.key).name, *view.cache_key()[1:])
+
+
 def build_fast_objective(tracer, views, video, pixels: int, spp: int, seed: int, env_height: int,
                          env_width: int) -> FastObjective:
     """Trace the transport of every fitted frame (frames with one view and one pixel sample share it)."""
@@ -92,7 +100,7 @@ def build_fast_objective(tracer, views, video, pixels: int, spp: int, seed: int,
     shared: dict = {}
     for i in video.fitted:
         view = views[i]
-        px = sample_pixels(video.used[i], pixels, seed, view.cache_key())
+        px = sample_pixels(video.used[i], pixels, seed, sample_key(view))
         key = (view.cache_key(), px.tobytes())
         if key not in shared:
             shared[key] = build_transport(tracer, view, px, spp, seed=seed * 7919 + i, env_height=env_height,
