@@ -11,7 +11,8 @@ run's train split choose the setting; those of the test split report it.
 
     .venv/bin/python benchmarks/envfit_response.py --results results [--split train]
 
-Writes results/bench/envfit_response.json (the benchmark shape of docs/architecture.md).
+Writes results/bench/envfit_response.json (the benchmark shape of docs/architecture.md: a point per group of
+clips, ``real:train``, ``real:test``, ``synthetic control:<split>``, and setting, off or on).
 """
 
 from __future__ import annotations
@@ -101,13 +102,21 @@ def main(argv: list[str] | None = None) -> int:
         summary[f"{kind[0]}:{kind[1]}"] = {
             "clips": len(sel), "psnr_db_without_mean": round(float(np.mean([r["psnr_db_without"] for r in sel])), 3),
             "psnr_db_with_mean": round(float(np.mean([r["psnr_db_with"] for r in sel])), 3),
-            "gamma_range": [min(r["gamma"] for r in sel), max(r["gamma"] for r in sel)]}
+            "gamma_range": [min(r["gamma"] for r in sel), max(r["gamma"] for r in sel)],
+            "seconds_without": round(sum(r["fit_seconds"] for r in sel), 2),
+            "seconds_with": round(sum(r["fit_seconds"] + r["response_seconds"] for r in sel), 2)}
+    points = [{"series": group, "setting": setting, "seconds": v[f"seconds_{key}"], "value": v[f"psnr_db_{key}_mean"]}
+              for group, v in summary.items() for setting, key in (("off", "without"), ("on", "with"))]
     out = a.out or Path(a.results, "bench", "envfit_response.json")
-    io.write_json(out, {"benchmark": "envfit_response", "machine": {"cores": os.cpu_count(),
-                                                                    "platform": platform.platform()},
-                        "units": {"psnr_db": "display PSNR of the pseudo-input against the video, dB",
+    io.write_json(out, {"name": "envfit_response", "varied": "envfit.fit_response", "metric": "psnr_db",
+                        "higher_is_better": True, "chosen": "on" if settings.fit_response else "off",
+                        "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
+                        "units": {"psnr_db": "display PSNR of the pseudo-input against the video, dB (mean over a "
+                                             "group's clips)",
+                                  "seconds": "the envmap fits' seconds summed over a group's clips (with: the "
+                                             "curve's too)",
                                   "gamma": "unitless, out = gain * x ** gamma on linear RGB"},
-                        "clips": rows, "summary": summary})
+                        "points": points, "clips": rows, "summary": summary})
     for k, v in summary.items():
         print(f"{k:28s} {v['clips']} clips: {v['psnr_db_without_mean']:.2f} -> {v['psnr_db_with_mean']:.2f} dB, "
               f"gamma {v['gamma_range'][0]:.2f}-{v['gamma_range'][1]:.2f}")

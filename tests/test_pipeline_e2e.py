@@ -169,6 +169,9 @@ def test_envfit_response_benchmark_scores_real_clips_and_a_synthetic_control(e2e
     assert bench.main(["--results", str(e2e_run / "results"), "--config", CI_CONFIG, "--split", "train",
                        "--out", str(out)]) == 0
     res = json.loads(out.read_text())
+    groups = {(g, s) for g in res["summary"] for s in ("off", "on")}
+    assert {(p["series"], p["setting"]) for p in res["points"]} == groups
+    assert res["chosen"] == "on"  # the default (config/ci.yaml extends it) fits the curve
     kinds = {r["kind"] for r in res["clips"]}
     assert kinds == {"real", "synthetic control"}
     real = {r["clip"]: r for r in res["clips"] if r["kind"] == "real"}
@@ -180,4 +183,4 @@ def test_envfit_response_benchmark_scores_real_clips_and_a_synthetic_control(e2e
         assert 0.5 <= r["gamma"] <= 3.0
     for clip, r in real.items():  # the run's own pseudo-input is the benchmark's "with"
         fit = json.loads((e2e_run / "results" / "envfit" / clip / "fit.json").read_text())
-        assert fit["pseudo_psnr_db"]["mean"] == pytest.approx(r["psnr_db_with"], abs=0.05)
+        assert fit["pseudo_psnr_db"]["mean"] == pytest.approx(r["psnr_db_with"], abs=0.01)
