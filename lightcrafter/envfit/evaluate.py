@@ -35,12 +35,9 @@ class TrueObjective:
 
     def _renderer(self, env: np.ndarray) -> ProxyRenderer:
         r = ProxyRenderer(Lighting(env=np.asarray(env, np.float32)), self.settings)
-        if self.settings.visibility in ("aggregate", "auto"):
-            if self._base is None:  # R's clip visibility mesh, built once for every map evaluated
-                r.prepare(self.problem.views)
-                self._base = r
-            else:
-                r.share_visibility(self._base)
+        r.prepare(self.problem.views, like=self._base)  # R's clip visibility mesh, built once for every map
+        if self._base is None:
+            self._base = r
         return r
 
     def renders(self, env: np.ndarray) -> dict[int, np.ndarray]:

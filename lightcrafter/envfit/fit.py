@@ -335,10 +335,7 @@ def fit_camera_response(problem: Problem, lighting_path: Path, seed: int = 0):
 
     t0 = time.perf_counter()
     renderer = ProxyRenderer(lighting_from_file(lighting_path), problem.render)
-    if problem.render.visibility in ("aggregate", "auto"):
-        renderer.share_visibility(problem.tracer.renderer)
-    else:
-        renderer.prepare(problem.views)
+    renderer.prepare(problem.views, like=problem.tracer.renderer)
     rendered, observed = [], []
     for i in problem.video.fitted:
         frame = renderer.render(problem.views[i], frame=i)

@@ -68,10 +68,7 @@ def render_views(views: list[FrameView], lighting: Lighting, settings: RenderSet
     t0 = time.perf_counter()
     if todo:
         folder.stamp()
-        if visibility_from is not None and settings.visibility in ("aggregate", "auto"):
-            renderer.share_visibility(visibility_from)
-        else:
-            renderer.prepare(views)
+        renderer.prepare(views, like=visibility_from)
         for i in todo:
             frame = renderer.render(views[i], frame=i)
             io.write_frame_exr(folder.path(i), frame if response is None else response.apply(frame))

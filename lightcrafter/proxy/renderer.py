@@ -249,9 +249,14 @@ class ProxyRenderer:
         self._shadow = _scene(shapes, self._env)
         self._shadow_key = key
 
-    def prepare(self, views: list[FrameView]) -> None:
-        """Build the clip's visibility mesh from its distinct views (setting visibility='aggregate')."""
+    def prepare(self, views: list[FrameView], like: "ProxyRenderer | None" = None) -> None:
+        """Build the clip's visibility mesh from its distinct views (setting visibility='aggregate'); with
+        ``like``, a renderer already prepared on these views with the same geometry settings, take its mesh
+        instead (:meth:`share_visibility`)."""
         s = self.settings
+        if like is not None and s.visibility in ("aggregate", "auto"):
+            self.share_visibility(like)
+            return
         if s.visibility == "none":
             self._set_shadow(np.zeros((0, 3)), np.zeros((0, 3)), "none")
             return
