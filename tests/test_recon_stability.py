@@ -175,6 +175,53 @@ def test_holes_of_the_mask_are_filled_and_the_sky_is_kept():
     assert filled[19, 29] in (vals[18, 29], vals[19, 28])
 
 
+def _wall_over_ground() -> tuple[np.ndarray, np.ndarray]:
+    """A display frame (uint8 (40, 60, 3)): an orange wall of the environment (rows 0-14) above a pink textured
+    ground (rows 15-39) with a red box on it; and an estimator's surface probability that is sure of the upper
+    wall (0.02) and of most of the ground (0.999) but calls the wall's lower third (rows 10-14) a surface with
+    probability 0.95, as it does where the environment shows behind the edge of the ground."""
+    rng = np.random.default_rng(0)
+    img = np.zeros((40, 60, 3), np.float32)
+    img[:15] = (0.85, 0.5, 0.25)
+    img[15:] = (0.75, 0.55, 0.6)
+    img[25:32, 20:28] = (0.8, 0.1, 0.1)
+    img = np.clip(img + rng.normal(0, 0.03, img.shape), 0, 1)
+    prob = np.full((40, 60), 0.999, np.float32)
+    prob[:10] = 0.02
+    prob[10:15] = 0.95
+    prob[15:18] = 0.95  # the ground's own unsure rows next to the wall stay surface
+    return (img * 255).round().astype(np.uint8), prob
+
+
+def test_grabcut_takes_the_unsure_environment_off_the_surface_and_keeps_the_ground():
+    from lightcrafter.recon.default import refine_mask_grabcut
+
+    img, prob = _wall_over_ground()
+    before = prob > 0.9
+    assert before[10:15].all()  # the estimator's mask alone keeps the wall's lower rows
+    after = refine_mask_grabcut(img[None], prob[None], 0.9)[0]
+    assert after[10:15].mean() < 0.05, "the wall the estimator was unsure of is still surface"
+    assert after[15:].mean() > 0.99, "ground or box pixels were taken off the surface"
+    assert not after[:10].any()
+    np.testing.assert_array_equal(after, refine_mask_grabcut(img[None], prob[None], 0.9)[0])  # same video, same mask
+
+
+def test_grabcut_leaves_a_frame_without_sure_background_or_a_uniform_frame_as_the_estimator_said():
+    from lightcrafter.recon.default import refine_mask_grabcut
+
+    img, prob = _wall_over_ground()
+    no_bg = np.maximum(prob, 0.5)  # nothing sure to be background: no colour to learn it from
+    np.testing.assert_array_equal(refine_mask_grabcut(img[None], no_bg[None], 0.9)[0], no_bg > 0.9)
+    one_px = np.full_like(prob, 0.02)
+    one_px[20, 30] = 0.999  # one sure surface pixel: a degenerate colour model, no error
+    np.testing.assert_array_equal(refine_mask_grabcut(img[None], one_px[None], 0.9)[0], one_px > 0.9)
+    for value in (0, 255):  # a black and a saturated frame: one colour for surface and background alike
+        flat = np.full_like(img, value)
+        out = refine_mask_grabcut(flat[None], prob[None], 0.9)[0]
+        assert out.dtype == bool and out.shape == prob.shape
+        assert out[prob > 0.995].all() and not out[prob < 0.1].any()  # the sure pixels keep their labels
+
+
 def test_ground_plane_is_recovered_from_noisy_points_with_outliers_and_degenerate_input_is_refused():
     from lightcrafter.recon.default import fit_ground_plane
 

@@ -6,7 +6,8 @@ transform, lightcrafter.io.linear_to_display, as a camera would record them):
 1. cameras (:func:`lightcrafter.recon.cameras.estimate_cameras`): static detection, else COLMAP SfM
    with the intrinsics prior held fixed; SfM world and units;
 2. per-frame buffers from the estimator (:mod:`.estimator`): depth in the training scenes' metres,
-   camera-space normals, albedo, roughness, metallic, mask;
+   camera-space normals, albedo, roughness, metallic, mask (``mask_refine: grabcut``: the mask refined by colour,
+   :func:`refine_mask_grabcut`);
 3. depth made consistent with the cameras: per frame, the estimator's inverse depth is fitted to the
    SfM points seen in that frame, 1/d = a/d_pred + b + p x + q y (``depth_fit: planar``, robust least
    squares; (x, y) normalised camera coordinates), 1/d = a/d_pred + b (``affine``) or 1/d = a/d_pred
@@ -51,7 +52,8 @@ class DefaultSettings:
     else SfM) | static (known fixed camera: no SfM); normals: predicted | depth; depth_fit: scale |
     affine | planar (per-frame fit of the estimator's depth to the SfM points, see :func:`depth_fits`);
     min_points: SfM points a frame needs for its own depth scale; mask_threshold: estimator mask
-    probability above which a pixel is a surface; max_hole_fraction: non-surface components enclosed by
+    probability above which a pixel is a surface; mask_refine: none | grabcut (that mask refined by colour,
+    :func:`refine_mask_grabcut`); max_hole_fraction: non-surface components enclosed by
     surface or smaller than this fraction of the frame are holes, filled from the nearest surface pixel
     (:func:`hole_pixels`; 0 = off); ground_plane: snap the dominant supporting plane
     (:func:`snap_to_ground_plane`, tolerance ``ground_plane_tol_rel`` of depth, normals within
@@ -69,6 +71,7 @@ class DefaultSettings:
     depth_fit: str = "scale"
     min_points: int = 8
     mask_threshold: float = 0.5
+    mask_refine: str = "none"
     max_hole_fraction: float = 0.0
     ground_plane: bool = False
     ground_plane_tol_rel: float = 0.05
@@ -89,6 +92,8 @@ class DefaultSettings:
             raise ValueError(f"recon camera={s.camera!r}: use 'auto' or 'static'")
         if s.depth_fit not in DEPTH_FIT_MODES:
             raise ValueError(f"recon.depth_fit={s.depth_fit!r}: use one of {list(DEPTH_FIT_MODES)}")
+        if s.mask_refine not in MASK_REFINE_MODES:
+            raise ValueError(f"recon.mask_refine={s.mask_refine!r}: use one of {list(MASK_REFINE_MODES)}")
         if s.sky_beyond_ground and s.sky_beyond_ground < 1.0:
             raise ValueError(f"recon.sky_beyond_ground={s.sky_beyond_ground!r}: use 0 (off) or a ratio >= 1")
         if s.ground_plane_normal not in GROUND_NORMALS + ("auto",):
@@ -246,6 +251,43 @@ def hole_pixels(valid: np.ndarray, max_fraction: float) -> np.ndarray:
     fill = small | enclosed
     fill[0] = False
     return fill[lab]
+
+
+MASK_REFINE_MODES = ("none", "grabcut")
+SURE_SURFACE = 0.995  # grabcut seeds: estimator surface probability above which a pixel stays surface,
+SURE_BACKGROUND = 0.1  # below which it stays background
+
+
+def refine_mask_grabcut(frames_u8: np.ndarray, probability: np.ndarray, threshold: float, seed: int = 0,
+                        iterations: int = 5) -> np.ndarray:
+    """Surface masks (N, H, W) bool of a video: the estimator's (``probability`` > ``threshold``) refined per
+    frame by OpenCV's GrabCut on the display frame (uint8 (N, H, W, 3)).
+
+    The estimator is unsure near the edge of the ground, where the environment behind it shows a far wall or
+    trees: it calls that background a surface with probability 0.9-0.99, below the ground's own 0.998, and the
+    plane snap then extends the ground into the sky. GrabCut learns one colour model for the frame's surface and
+    one for its background from the sure pixels (probability above :data:`SURE_SURFACE`, below
+    :data:`SURE_BACKGROUND`) and relabels the unsure ones between them by colour and image edges. A frame without
+    a sure-background or a sure-surface pixel keeps the estimator's mask (no colour to learn). OpenCV's random
+    generator is seeded per frame (``seed`` + frame index), so the same video gives the same masks."""
+    import cv2
+
+    probability = np.asarray(probability)
+    out = probability > threshold
+    for i in range(len(probability)):
+        p = probability[i]
+        labels = np.full(p.shape, cv2.GC_PR_BGD, np.uint8)
+        labels[p > threshold] = cv2.GC_PR_FGD
+        labels[p > SURE_SURFACE] = cv2.GC_FGD
+        labels[p < SURE_BACKGROUND] = cv2.GC_BGD
+        if not (labels == cv2.GC_BGD).any() or not (labels == cv2.GC_FGD).any():
+            continue
+        cv2.setRNGSeed(seed + i)
+        bg_model, fg_model = np.zeros((1, 65)), np.zeros((1, 65))
+        cv2.grabCut(np.ascontiguousarray(frames_u8[i]), labels, None, bg_model, fg_model, iterations,
+                    cv2.GC_INIT_WITH_MASK)
+        out[i] = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
+    return out
 
 
 def fill_from_nearest(values: np.ndarray, valid: np.ndarray, where: np.ndarray) -> np.ndarray:
@@ -459,6 +501,7 @@ def config_settings(cfg: dict) -> dict:
         "normals": r["normals"],
         "depth_fit": r["depth_fit"],
         "mask_threshold": r["mask_threshold"],
+        "mask_refine": r["mask_refine"],
         "max_hole_fraction": r["max_hole_fraction"],
         "ground_plane": r["ground_plane"],
         "ground_plane_tol_rel": r["ground_plane_tol_rel"],
@@ -509,6 +552,12 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     except ReconstructionError as exc:
         raise ReconstructionError(f"{name}: {exc}") from None
     mask = pred["mask"] > settings.mask_threshold
+    mask_info = {}
+    if settings.mask_refine == "grabcut":
+        refined = refine_mask_grabcut(u8, pred["mask"], settings.mask_threshold)
+        mask_info = {"mask_pixels_removed": int((mask & ~refined).sum()),
+                     "mask_pixels_added": int((refined & ~mask).sum())}
+        mask = refined
     depth = np.stack([apply_depth_fit(pred["depth"][i], fits[i], track.K[i]) for i in range(n)])
     if settings.normals == "depth":
         n_cam = np.stack([normals_from_depth(depth[i], track.K[i]) for i in range(n)])
@@ -579,7 +628,7 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
         if i in todo:
             frames.stamp()
             io.write_buffers(frames.path(i), b)
-    info = {**track.info, **plane_info, "depth_fit_per_frame": np.round(fits, 6).tolist(), "hole_pixels_filled": sum(filled_per_frame),
+    info = {**track.info, **plane_info, **mask_info, "depth_fit_per_frame": np.round(fits, 6).tolist(), "hole_pixels_filled": sum(filled_per_frame),
             "registered_per_frame": track.registered.tolist()}
     timing = {"cameras_seconds": round(t_cam, 3), "estimator_seconds": round(t_est, 3),
               "seconds": round(time.perf_counter() - t0, 3), "frames": n}
