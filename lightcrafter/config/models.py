@@ -324,9 +324,9 @@ class Recon(Section):
     mask_threshold: float = Field(0.5, gt=0.0, lt=1.0, description="default backend: the estimator's surface "
                                   "probability above which a pixel is surface (below: the environment)")
     mask_refine: Literal["none", "grabcut"] = Field(
-        "none", description="default backend: none, or grabcut: the mask refined per frame by OpenCV's GrabCut, with "
-        "colour models of the sure surface and sure background pixels (lightcrafter.recon.default.refine_mask_grabcut; "
-        "counted in the clip manifest's phi.mask_pixels_removed and phi.mask_pixels_added)")
+        "none", description="default backend: none, or grabcut: surface pixels that OpenCV's GrabCut labels "
+        "background go (per frame, colour models of the sure surface and sure background pixels; "
+        "lightcrafter.recon.default.refine_mask_grabcut; counted in the clip manifest's phi.mask_pixels_removed)")
     max_hole_fraction: NonNegativeFloat = Field(0.0, le=1.0, description="default backend: non-surface regions "
                                                 "enclosed by surface, or smaller than this fraction of the frame, are "
                                                 "holes of the estimator's mask, filled from the nearest surface pixel "
