@@ -181,7 +181,9 @@ def write_clip(clip_dir: str | os.PathLike, *, serve: list[int], K: np.ndarray, 
 
     ``serve[i]`` is the distinct frame whose buffers (``buffers/{serve[i]:04d}.exr``) serve frame i.
     ``K`` (N, 3, 3) and ``c2w`` (N, 4, 4) are per frame (OpenCV camera, world Z up). Every listed buffer
-    file must already be complete; the manifest is written last and atomically.
+    file must already be complete; the manifest is written last and atomically. ``content_id`` (what the
+    frames were made from) is stored with the producer's code folded in (:func:`lightcrafter.io.product_fingerprint`
+    when an entry point set the code version), so consumers of a clip re-made by changed code re-make theirs.
     """
     clip_dir = Path(clip_dir)
     n = len(serve)
@@ -193,6 +195,8 @@ def write_clip(clip_dir: str | os.PathLike, *, serve: list[int], K: np.ndarray, 
     for j in sorted(set(serve)):
         if not buffer_path(clip_dir, j).is_file():
             raise io.DataError(f"{buffer_path(clip_dir, j)}: buffer frame missing; rerun the stage that writes it")
+    if content_id is not None and io.CODE_VERSION:
+        content_id = io.product_fingerprint(content_id)
     io.write_cameras(clip_dir / CAMERAS, width, height, K, c2w)
     manifest = {
         "format": FORMAT,

@@ -18,7 +18,9 @@ What a fingerprint covers, found by reading the code (nothing is imported or run
 A file counts by its syntax tree without docstrings, so that editing a comment, a docstring or the layout
 reruns nothing; a file that does not parse counts by its bytes.
 
-Not followed: ``lightcrafter.config`` (what it changes reaches jobs as config values, which the workflow
+Not followed: ``lightcrafter.codeversion`` itself (every entry point imports it through ``scripts/_cli.py`` to
+know its own code version, lightcrafter.io.CODE_VERSION; an edit of how fingerprints are computed changes them
+all anyway), ``lightcrafter.config`` (what it changes reaches jobs as config values, which the workflow
 writes into the settings files the jobs read, so a changed value reruns them through those files) and
 modules loaded by a name in a string (``lightcrafter.recon.BACKENDS``: ``scripts/reconstruct.py`` imports
 both backends itself). Following the config package would tie every job to the code of every section it
@@ -47,7 +49,7 @@ def _module_name(path: Path, repo: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-NOT_FOLLOWED = (f"{PACKAGE}.config",)
+NOT_FOLLOWED = (f"{PACKAGE}.config", f"{PACKAGE}.codeversion")
 
 
 CACHE = Path(".snakemake") / "codeversion-cache.json"  # under the repository: what each file imports, its digest

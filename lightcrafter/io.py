@@ -126,13 +126,28 @@ def fingerprint(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+# The code that makes a product is part of what the product comes from. An entry point (scripts/_cli.py) sets
+# this to its code fingerprint (lightcrafter.codeversion); frame-folder stamps, clip content ids and the resume
+# fingerprints of fits and training runs fold it in (:func:`product_fingerprint`), so a job that reruns after a
+# code change never keeps frames, maps or checkpoints the old code made. Empty outside entry points (library
+# calls, tests, benchmarks): there, products of the same inputs are reused as before.
+CODE_VERSION = ""
+
+
+def product_fingerprint(inputs) -> str:
+    """:func:`fingerprint` of ``inputs`` and of the running code (:data:`CODE_VERSION`, when set): the identity
+    of a product that is resumed or reused (frame folders, clips, fits, checkpoints)."""
+    return fingerprint({"inputs": inputs, "code": CODE_VERSION}) if CODE_VERSION else fingerprint(inputs)
+
+
 def claim_frame_dir(frame_dir: str | os.PathLike, inputs) -> int:
     """Drop frames in ``frame_dir`` that were not rendered from ``inputs``; return how many went.
 
     Frame folders keep complete frames across a killed run (resume), but a rerun with other
     inputs (scene spec, settings, upstream buffers) must not reuse them. The folder's
     ``.inputs.json`` (written by :func:`stamp_frame_dir` before the first frame) records the
-    fingerprint of what its frames come from; when it differs or is missing, every ``*.exr``
+    fingerprint of what its frames come from, the code that renders them included
+    (:func:`product_fingerprint`); when it differs or is missing, every ``*.exr``
     in the folder is deleted. Temporaries a killed writer left behind (``.*.tmp*``, see
     :func:`atomic_path`) are always deleted: they were never renamed into place, so never trusted.
     """
@@ -147,7 +162,7 @@ def claim_frame_dir(frame_dir: str | os.PathLike, inputs) -> int:
         except (json.JSONDecodeError, AttributeError):
             have = None
     removed = 0
-    if have != fingerprint(inputs):
+    if have != product_fingerprint(inputs):
         for f in frame_dir.glob("[!.]*.exr"):
             f.unlink()
             removed += 1
@@ -156,7 +171,7 @@ def claim_frame_dir(frame_dir: str | os.PathLike, inputs) -> int:
 
 def stamp_frame_dir(frame_dir: str | os.PathLike, inputs) -> None:
     """Record that frames in ``frame_dir`` are rendered from ``inputs`` (call before writing any)."""
-    write_json(Path(frame_dir) / ".inputs.json", {"fingerprint": fingerprint(inputs)})
+    write_json(Path(frame_dir) / ".inputs.json", {"fingerprint": product_fingerprint(inputs)})
 
 
 # ----------------------------------------------------------------------------- EXR

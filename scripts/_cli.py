@@ -14,8 +14,11 @@ def run(main, name: str | None = None, errors: tuple = ()) -> None:
     """Run ``main()`` and exit with its return value (None = 0). Known input errors (DataError, which includes
     the refiner's CheckpointError, ConfigError, FileNotFoundError, NoGPUError and ``errors``) become one line on
     stderr, ``<name>: <message>`` (``error: <message>`` without a name), and exit code 1: the one error path of
-    every entry point. Imports here count in every script's code fingerprint (lightcrafter.codeversion)."""
+    every entry point. Imports here count in every script's code fingerprint (lightcrafter.codeversion).
+    Calls :func:`set_code_version` first."""
     from lightcrafter.errors import ConfigError, DataError, NoGPUError
+
+    set_code_version()
 
     try:
         rc = main()
@@ -23,6 +26,18 @@ def run(main, name: str | None = None, errors: tuple = ()) -> None:
         print(f"{name or 'error'}: {exc}", file=sys.stderr)
         sys.exit(1)
     sys.exit(int(rc or 0))
+
+
+def set_code_version() -> None:
+    """The running script's code fingerprint (lightcrafter.codeversion) becomes the library's code version
+    (lightcrafter.io.CODE_VERSION): what this process resumes or reuses (frame folders, fits, checkpoints) must
+    have been made by the same code, and the clips it writes name that code in their content id."""
+    from lightcrafter import io
+    from lightcrafter.codeversion import code_fingerprint
+
+    script = Path(sys.argv[0])
+    if script.suffix == ".py" and script.is_file():
+        io.CODE_VERSION = code_fingerprint(script.resolve())
 
 
 def json_arg(text: str | None, default=None):

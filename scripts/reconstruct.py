@@ -117,4 +117,7 @@ def _drop_tool_work(out: Path) -> bool:
 
 
 if __name__ == "__main__":
+    from _cli import set_code_version
+
+    set_code_version()
     sys.exit(main())

@@ -58,4 +58,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    from _cli import set_code_version
+
+    set_code_version()
     sys.exit(main())

@@ -35,8 +35,8 @@ def make_clip(root: Path, env: np.ndarray | None = None) -> tuple[Path, Path]:
     return gt, scene
 
 
-def run(gt, scene, out, *extra):
-    return subprocess.run([sys.executable, str(REPO / "scripts" / "render_proxy.py"), "--clip", str(gt),
+def run(gt, scene, out, *extra, repo: Path = REPO):
+    return subprocess.run([sys.executable, str(repo / "scripts" / "render_proxy.py"), "--clip", str(gt),
                            "--scene", str(scene), "--light", "L1", "--traj", "t0", "--out", str(out), "--proxy", '{"spp": 2}',
                            *extra],
                           capture_output=True, text=True, timeout=300)
@@ -58,6 +58,32 @@ def test_cli_renders_every_frame_then_resumes(tmp_path):
     p = run(gt, scene, out)
     assert p.returncode == 0, p.stderr
     assert json.loads(out.with_suffix(".json").read_text())["stats"]["frames"] == 0
+
+
+@pytest.mark.slow
+def test_a_rerun_after_the_renderer_changed_renders_every_frame_again(tmp_path):
+    """Frames are resumed only when the code that renders them is the same: after an edit of the renderer the
+    workflow reruns the job (its code fingerprint changed), and the job must not keep the old code's frames,
+    which match the new job's inputs in everything but the code (lightcrafter.io.CODE_VERSION)."""
+    import shutil
+
+    repo = tmp_path / "repo"
+    for d in ("scripts", "lightcrafter"):
+        shutil.copytree(REPO / d, repo / d, ignore=shutil.ignore_patterns("__pycache__", "*.pt", "*.npz"))
+    gt, scene = make_clip(tmp_path)
+    out = tmp_path / "proxy" / "L1"
+    manifest = out.with_suffix(".json")
+    assert run(gt, scene, out, repo=repo).returncode == 0
+    manifest.unlink()
+    p = run(gt, scene, out, repo=repo)  # same code: every frame resumed
+    assert p.returncode == 0, p.stderr
+    assert json.loads(manifest.read_text())["stats"]["frames"] == 0
+    renderer = repo / "lightcrafter" / "proxy" / "renderer.py"
+    renderer.write_text(renderer.read_text() + "\n_EDITED = True\n")  # a code change, not a docstring's
+    manifest.unlink()
+    p = run(gt, scene, out, repo=repo)
+    assert p.returncode == 0, p.stderr
+    assert json.loads(manifest.read_text())["stats"]["frames"] == N, "frames of the old renderer were kept"
 
 
 def _assert_clean_failure(p, out, name):

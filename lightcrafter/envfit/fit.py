@@ -353,7 +353,7 @@ def fit_fingerprint(clip: Path, frames: np.ndarray, settings: FitSettings, rende
                     init_map_digest: str | None) -> str:
     from lightcrafter.proxy.clip import _settings_dict
 
-    return io.fingerprint({"what": "envfit", "clip": clipmod.identity(clip), "frames": _digest_array(frames),
+    return io.product_fingerprint({"what": "envfit", "clip": clipmod.identity(clip), "frames": _digest_array(frames),
                            "settings": settings.fingerprint_dict(), "render": _settings_dict(render),
                            "init": init_map_digest})
 

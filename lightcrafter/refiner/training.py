@@ -164,7 +164,8 @@ def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
     selection keys), the objective, the training timestep range and the data (the dataset's
     ``data_identity()`` when it has one -- re-rendered frames change it -- else the pair ids).
 
-    A checkpoint is only resumed when this matches; otherwise training starts afresh.
+    A checkpoint is only resumed when this matches; otherwise training starts afresh. The running entry
+    point's code (lightcrafter.io.CODE_VERSION) counts too: a checkpoint of other code is not resumed.
     """
     import hashlib
     import json
@@ -180,7 +181,9 @@ def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
         ids = dataset.data_identity()
     else:
         ids = getattr(dataset, "pair_ids", None) or [dataset[i]["pair_id"] for i in range(len(dataset))]
-    blob = json.dumps([c, ids], sort_keys=True, default=str).encode()
+    from lightcrafter.io import CODE_VERSION
+
+    blob = json.dumps([c, ids] + ([CODE_VERSION] if CODE_VERSION else []), sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 
 
