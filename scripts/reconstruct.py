@@ -11,7 +11,6 @@ stopping the run.
 """
 
 import argparse
-import json
 import shutil
 import sys
 from pathlib import Path

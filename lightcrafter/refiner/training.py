@@ -167,8 +167,7 @@ def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
     A checkpoint is only resumed when this matches; otherwise training starts afresh. The running entry
     point's code (lightcrafter.io.CODE_VERSION) counts too: a checkpoint of other code is not resumed.
     """
-    import hashlib
-    import json
+    from lightcrafter.io import product_fingerprint
 
     c = {k: (dict(v) if isinstance(v, dict) else v) for k, v in cfg.items()
          if k not in ("infer", "select", "baselines")}
@@ -181,10 +180,7 @@ def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
         ids = dataset.data_identity()
     else:
         ids = getattr(dataset, "pair_ids", None) or [dataset[i]["pair_id"] for i in range(len(dataset))]
-    from lightcrafter.io import CODE_VERSION
-
-    blob = json.dumps([c, ids] + ([CODE_VERSION] if CODE_VERSION else []), sort_keys=True, default=str).encode()
-    return hashlib.sha256(blob).hexdigest()[:16]
+    return product_fingerprint([c, ids])
 
 
 def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True,
