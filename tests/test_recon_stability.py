@@ -128,7 +128,7 @@ def test_phi_on_a_uniform_video_takes_the_static_camera_and_writes_valid_buffers
     f = _linear_frames()[case]
     video = _video(tmp_path, [f] * 5, case)
     m = reconstruct_default(video, tmp_path / "clip", estimator_path=wpath, fps=24, scene_static=True,
-                            settings=DefaultSettings(fov_x_deg=50.0))
+                            settings=DefaultSettings(fov_x_deg=50.0, albedo_detail_px=1.0))
     assert m["phi"]["method"].startswith("static")
     views, _ = read_clip(tmp_path / "clip")
     for v in views:

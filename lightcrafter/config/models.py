@@ -348,6 +348,11 @@ class Recon(Section):
                                                 "frame's farthest ground pixel become background (the estimator's "
                                                 "sky as a far wall shadows the whole ground; counted in the clip "
                                                 "manifest's phi.sky_pixels_cut); 0 = off, else >= 1")
+    albedo_detail_px: NonNegativeFloat = Field(0.0, description="default backend: the input's texture on the "
+                                               "estimator's smooth albedo: each channel times the frame's linear "
+                                               "colour over its Gaussian blur of this many pixels (clipped to "
+                                               "[0.5, 2]; a static clip: the median over its frames; "
+                                               "lightcrafter.recon.default.albedo_detail); 0 = off")
     skip_failed: bool = Field(True, description="a video Phi cannot reconstruct is left out and counted instead of "
                               "stopping the run")
     sfm: SfM = Field(default_factory=SfM)

@@ -62,8 +62,9 @@ class DefaultSettings:
     points seen on its pixels; auto = predicted for a static camera, depth_sfm for a moving one);
     sky_beyond_ground: with the plane, surface pixels off it farther than this multiple of the frame's
     farthest ground pixel become background
-    (:func:`cut_sky_beyond_ground`; 0 = off); sfm: SfMSettings fields; exposure_ev: display
-    exposure applied before estimation."""
+    (:func:`cut_sky_beyond_ground`; 0 = off); albedo_detail_px: the input's own texture on the estimator's
+    albedo, through a Gaussian of this many pixels (:func:`albedo_detail`; 0 = off); sfm: SfMSettings fields;
+    exposure_ev: display exposure applied before estimation."""
 
     fov_x_deg: float = 50.0
     camera: str = "auto"
@@ -78,6 +79,7 @@ class DefaultSettings:
     ground_plane_max_tilt_deg: float = 25.0
     ground_plane_normal: str = "depth"
     sky_beyond_ground: float = 0.0
+    albedo_detail_px: float = 0.0
     exposure_ev: float = 0.0
     sfm: dict = field(default_factory=dict)
 
@@ -291,6 +293,29 @@ def refine_mask_grabcut(frames_u8: np.ndarray, probability: np.ndarray, threshol
                     cv2.GC_INIT_WITH_MASK)
         out[i] &= (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)  # only takes surface off, never adds
     return out
+
+
+DETAIL_RATIO_RANGE = (0.5, 2.0)  # bounds of the texture ratio: a highlight or a shadow edge moves the albedo 2x at most
+DETAIL_EPS = 1e-3  # linear radiance added to both sides of the ratio: where a frame is black its ratio is 1
+
+
+def albedo_detail(frames_linear: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Texture ratio (H, W, 3) of the linear frames (K, H, W, 3) of one view: each channel over its Gaussian blur
+    of ``sigma_px`` pixels (``(x + eps) / (blur + eps)``, :data:`DETAIL_EPS`), clipped to :data:`DETAIL_RATIO_RANGE`,
+    the median over the K frames.
+
+    Multiplied onto the estimator's albedo (``recon.albedo_detail_px``). The estimator, a U-Net trained on 64x96
+    crops, returns a smooth albedo: the ground's bricks and checks are gone, and so is their contrast in the proxy.
+    Shading varies slowly over a surface, so at the scale of a pixel or two the input's variation is the albedo's
+    (a cast shadow's edge or a highlight also passes, bounded by the clip). A static view's frames under a moving
+    light give the median: an edge that moves with the light is in few of them."""
+    import cv2
+
+    ratios = []
+    for f in np.asarray(frames_linear, np.float32):
+        blur = cv2.GaussianBlur(f, (0, 0), float(sigma_px), borderType=cv2.BORDER_REFLECT)
+        ratios.append(np.clip((f + DETAIL_EPS) / (blur + DETAIL_EPS), *DETAIL_RATIO_RANGE))
+    return np.median(np.stack(ratios), axis=0) if len(ratios) > 1 else ratios[0]
 
 
 def fill_from_nearest(values: np.ndarray, valid: np.ndarray, where: np.ndarray) -> np.ndarray:
@@ -511,6 +536,7 @@ def config_settings(cfg: dict) -> dict:
         "ground_plane_max_tilt_deg": r["ground_plane_max_tilt_deg"],
         "ground_plane_normal": r["ground_plane_normal"],
         "sky_beyond_ground": r["sky_beyond_ground"],
+        "albedo_detail_px": r["albedo_detail_px"],
         "sfm": r["sfm"],
     }
 
@@ -617,6 +643,9 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
             ok = ok | holes
         else:
             albedo, rough, metal = (pred[k][sel].mean(0) for k in ("albedo", "roughness", "metallic"))
+        if settings.albedo_detail_px > 0:
+            lin = io.display_to_linear(disp[sel], settings.exposure_ev)
+            albedo = np.clip(albedo * albedo_detail(lin, settings.albedo_detail_px), 0.0, 1.0)
         filled_per_frame.append(int(holes.sum()))
         return io.Buffers(depth=np.where(ok, d, np.inf).astype(np.float32),
                           normal=np.where(ok[..., None], nn_, 0.0).astype(np.float32),
