@@ -28,14 +28,15 @@ def run(main, name: str | None = None, errors: tuple = ()) -> None:
     sys.exit(int(rc or 0))
 
 
-def set_code_version() -> None:
+def set_code_version(script: Path | None = None) -> None:
     """The running script's code fingerprint (lightcrafter.codeversion) becomes the library's code version
     (lightcrafter.io.CODE_VERSION): what this process resumes or reuses (frame folders, fits, checkpoints) must
-    have been made by the same code, and the clips it writes name that code in their content id."""
+    have been made by the same code, and the clips it writes name that code in their content id. ``script``: another
+    entry point's file instead, for a product that process will resume."""
     from lightcrafter import io
     from lightcrafter.codeversion import code_fingerprint
 
-    script = Path(sys.argv[0])
+    script = Path(script or sys.argv[0])
     if script.suffix == ".py" and script.is_file():
         io.CODE_VERSION = code_fingerprint(script.resolve())
 

@@ -144,10 +144,7 @@ def main() -> int:
         torch.cuda.reset_peak_memory_stats()
     # a checkpoint is resumed only by the code that wrote it (lightcrafter.io.CODE_VERSION): this half trains
     # with the code version of scripts/train_refiner.py, the process that resumes it
-    from lightcrafter import io as lcio
-    from lightcrafter.codeversion import code_fingerprint
-
-    lcio.CODE_VERSION = code_fingerprint(SCRIPTS / "train_refiner.py")
+    _cli.set_code_version(SCRIPTS / "train_refiner.py")
     first = train(cfg, ds, out / "refiner", stop_after=a.steps // 2, progress=False, final_name="diffusion.pt")
     times["train_first_half_s"] = time.perf_counter() - t0
     log, times["train_resume_s"] = _run(SCRIPTS / "train_refiner.py", "--pairs", pairs, "--config-json",

@@ -445,7 +445,6 @@ def test_albedo_colour_gain_undoes_a_clip_wide_tint_from_the_pixels_surface_in_b
     assert np.all(albedo_colour_gain([replace(frames_phi[0], mask=np.zeros((h, w), np.float32))], frames_gt[:1]) == 1.0)
 
 
-
 def _bricks(h: int = 48, w: int = 72) -> np.ndarray:
     """A brick-like albedo (H, W, 3): light tiles with one-pixel dark mortar lines every 4 pixels."""
     a = np.empty((h, w, 3), np.float32)
