@@ -100,16 +100,19 @@ def plan_scene(scfg: dict, seed: int, index: int) -> dict:
     "elevation_group", "quadrant", "oscillating", "camera_static", "scene_static",
     "light_rotating", "source_light", "target_lights", "render_lights", "buffer_frames"}]}``.
     Motion configs cycle over ``scenes.motions`` across (scene, trajectory) so they stay balanced.
-    Scenes of split ``recon`` (training data of the reconstruction stack) get no target lightings:
-    only their source video and buffers are rendered.
+    Scenes of split ``recon`` (training data of the reconstruction stack) get no target lightings: their
+    buffers are rendered, with their source video and the videos under ``scenes.recon_lightings`` - 1 other
+    lightings (``render_lights``), all of which the G-buffer estimator trains on.
     """
     rng = _rng(seed, index, 1)
     n_light = int(scfg["lightings_per_scene"])
     n_targets = int(scfg["targets_per_trajectory"])
-    if n_targets > n_light - 1:
-        raise ConfigError(
-            f"scenes.targets_per_trajectory={n_targets} needs at least {n_targets + 1} lightings; "
-            f"raise scenes.lightings_per_scene (now {n_light})")
+    n_recon = int(scfg.get("recon_lightings", 1))
+    for key, value, needs in (("targets_per_trajectory", n_targets, n_targets + 1),
+                              ("recon_lightings", n_recon, n_recon)):
+        if needs > n_light:
+            raise ConfigError(f"scenes.{key}={value} needs at least {needs} lightings; raise "
+                              f"scenes.lightings_per_scene (now {n_light})")
     motions = list(scfg["motions"])
     lights = [f"L{k}" for k in range(n_light)]
     n_traj = int(scfg["trajectories_per_scene"])
@@ -120,8 +123,12 @@ def plan_scene(scfg: dict, seed: int, index: int) -> dict:
         src = int(rng.integers(n_light))
         others = [k for k in range(n_light) if k != src]
         tgts = sorted(int(k) for k in rng.choice(others, size=n_targets, replace=False))
-        if split == "recon":  # reconstruction-stack training data: buffers + the source video only
+        extra = []
+        if split == "recon":  # reconstruction-stack training data: buffers + videos under recon_lightings lights
             tgts = []
+            if n_recon > 1:  # a stream of its own: the plans of a run with one lighting stay as they were
+                draw = _rng(seed, index, 3, redraw=t + 1).choice(others, size=n_recon - 1, replace=False)
+                extra = sorted(int(k) for k in draw)
         camera_static = motion == "static_rotating_light"
         scene_static = motion != "dynamic_moving"
         trajs.append({
@@ -135,7 +142,7 @@ def plan_scene(scfg: dict, seed: int, index: int) -> dict:
             "light_rotating": motion == "static_rotating_light",
             "source_light": lights[src],
             "target_lights": [lights[k] for k in tgts],
-            "render_lights": sorted({lights[src], *(lights[k] for k in tgts)}),
+            "render_lights": sorted({lights[src], *(lights[k] for k in tgts + extra)}),
             "buffer_frames": 1 if (camera_static and scene_static) else int(scfg["num_frames"]),
         })
     return {"scene_id": f"s{index:04d}", "split": split, "lighting_ids": lights, "trajectories": trajs}

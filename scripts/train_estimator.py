@@ -4,9 +4,10 @@
   train_estimator.py --clips gt/s0004/t0/buffers.json ... --videos gt/s0004/t0/rgb/L1.json ... \
       --config-json '{"steps": 600}' --out results/recon/estimator/model.pt --curve results/recon/estimator/curve.json
 
-Clip k is paired with video k (the trajectory's source-light Cycles frames). Validation for the
-error-against-training-time curve (and the step kept): the last eighth of the scenes when there are 8 or
-more, else the last trajectory (all are used when there is only one).
+Clip k is paired with video k (Cycles frames of the trajectory under one of the lightings it is rendered
+under, scenes.recon_lightings: a clip repeats for each). Validation for the error-against-training-time
+curve (and the step kept): the last eighth of the scenes when there are 8 or more, else the last trajectory
+under all its lights (all are used when there is only one trajectory).
 """
 
 import argparse
@@ -20,14 +21,16 @@ from lightcrafter.io import DataError
 
 def validation_split(pairs: list[tuple[str, str]]) -> tuple[list, list]:
     """(validation, training) pairs: with 8 or more scenes, every trajectory of the last eighth of the scenes
-    (whole scenes held out: no layout seen in training); with fewer, the last trajectory; with one
-    trajectory, it is both."""
+    (whole scenes held out: no layout seen in training); with fewer, the last trajectory under every light it
+    comes with; with one trajectory, it is both."""
     scenes = sorted({Path(c).parent.parent.name for c, _ in pairs})
     if len(scenes) >= 8:
         held = set(scenes[-(len(scenes) // 8):])
         return [p for p in pairs if Path(p[0]).parent.parent.name in held], \
             [p for p in pairs if Path(p[0]).parent.parent.name not in held]
-    return (pairs[-1:], pairs[:-1]) if len(pairs) > 1 else (pairs, pairs)
+    last = max(c for c, _ in pairs)
+    val, train = [p for p in pairs if p[0] == last], [p for p in pairs if p[0] != last]
+    return (val, train) if train else (pairs, pairs)
 
 
 def main() -> int:

@@ -62,6 +62,32 @@ def test_motion_configs_and_leave_out_flags(default_config):
     assert seen == set(scenes.MOTIONS)
 
 
+def test_recon_lightings_render_a_recon_trajectory_under_that_many_lights_and_leave_other_plans_alone(default_config):
+    """scenes.recon_lightings: the estimator's training scenes get their buffers under several lights (source
+    first among them), no target lights (no pair is made of them); every other plan, and the default's, as
+    before; more than the scene's lightings is a one-line error naming the key."""
+    base = _cfg(default_config, count=12)
+    plans = [scenes.plan_scene(base["scenes"], 0, i) for i in range(12)]
+    assert plans == [scenes.plan_scene(_cfg(base, recon_lightings=1)["scenes"], 0, i) for i in range(12)]
+    three = [scenes.plan_scene(_cfg(base, recon_lightings=3)["scenes"], 0, i) for i in range(12)]
+    recon = [p for p in three if p["split"] == "recon"]
+    assert recon
+    for old, new in zip(plans, three):
+        if new["split"] != "recon":
+            assert new == old
+            continue
+        for to, tn in zip(old["trajectories"], new["trajectories"]):
+            assert tn["target_lights"] == [] and tn["source_light"] == to["source_light"]
+            assert len(tn["render_lights"]) == 3 and tn["source_light"] in tn["render_lights"]
+            assert {k: v for k, v in tn.items() if k != "render_lights"} == {k: v for k, v in to.items()
+                                                                               if k != "render_lights"}
+    # the other lights differ between trajectories (a stream per trajectory), and a second call gives the same
+    assert len({tuple(t["render_lights"]) for p in recon for t in p["trajectories"]}) > 1
+    assert three == [scenes.plan_scene(_cfg(base, recon_lightings=3)["scenes"], 0, i) for i in range(12)]
+    with pytest.raises(scenes.ConfigError, match=r"scenes.recon_lightings=5 needs at least 5 lightings"):
+        scenes.plan_scene(_cfg(base, recon_lightings=5)["scenes"], 0, 0)
+
+
 @pytest.mark.parametrize("deg_per_frame", [1.0, 2.0])
 def test_orbit_steps_the_configured_degrees_per_frame_and_oscillation_is_not_monotonic(default_config, deg_per_frame):
     cfg = _cfg(default_config, count=40, num_frames=25, oscillation_prob=0.5, orbit_deg_per_frame=deg_per_frame)

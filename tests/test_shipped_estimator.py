@@ -5,6 +5,7 @@ weights files get one line naming the file and the fix."""
 from __future__ import annotations
 
 import hashlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,8 @@ import torch
 from lightcrafter import io
 from lightcrafter.recon import estimator as est
 from lightcrafter.recon.weights import SHIPPED_PROVENANCE, SHIPPED_WEIGHTS, check_set_path, weights_path
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_shipped_weights_reproduce_their_recorded_validation_errors():
@@ -74,3 +77,27 @@ def test_a_weights_key_naming_a_missing_file_stops_the_run_at_start_up(tmp_path)
         effective_config(overrides={"recon": {"estimator": {"weights": str(missing)}}})
     assert "recon.estimator.weights" in str(exc.value) and str(missing) in str(exc.value)
     assert "\n" not in str(exc.value)
+
+
+def test_estimator_validation_holds_out_a_trajectory_under_all_its_lights():
+    """scripts/train_estimator.py: with fewer than 8 scenes the last trajectory validates, under every light it
+    was rendered under (scenes.recon_lightings): none of its videos trains; with 8 scenes, the last one's."""
+    import importlib.util
+    import sys
+
+    sys.path.insert(0, str(REPO / "scripts"))
+    spec = importlib.util.spec_from_file_location("train_estimator_script", REPO / "scripts" / "train_estimator.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+
+    def pairs(scenes, lights):
+        return sorted((f"gt/s{s:04d}/t{t}/buffers.json", f"gt/s{s:04d}/t{t}/rgb/L{k}.json")
+                      for s in range(scenes) for t in range(3) for k in lights)
+
+    val, train = mod.validation_split(pairs(2, (0, 2, 3)))
+    assert [c for c, _ in val] == ["gt/s0001/t2/buffers.json"] * 3 and len(train) == 15
+    assert not {c for c, _ in val} & {c for c, _ in train}
+    val, train = mod.validation_split(pairs(8, (1,)))
+    assert {c.split("/")[1] for c, _ in val} == {"s0007"} and len(val) == 3 and len(train) == 21
+    one = pairs(1, (0, 1))[:2]
+    assert mod.validation_split(one) == (one, one)

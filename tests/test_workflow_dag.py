@@ -134,6 +134,31 @@ def test_shipped_estimator_weights_leave_out_training_and_the_recon_split(defaul
     assert counts["train"]["sample_scene"] - counts["shipped"]["sample_scene"] == len(by["recon"])
 
 
+def test_recon_lightings_train_the_estimator_on_every_video_of_a_recon_trajectory(default_config, tmp_path):
+    """scenes.recon_lightings: 3 renders each recon trajectory under 3 lights, and the estimator's job pairs
+    each of those videos with the trajectory's buffers (the clip repeats), nothing else changes."""
+    by, trajs = _split_counts(default_config)
+    runs = {}
+    for n in (1, 3):
+        cfg = tmp_path / f"{n}.yaml"
+        cfg.write_text(yaml.safe_dump({"extends": str(REPO / "config" / "config.yaml"),
+                                       "scenes": {"recon_lightings": n}, "recon": {"estimator": {"weights": "train"}}}))
+        res = dry_run("results/recon/estimator/model.pt", configfile=str(cfg), extra=("-p",), quiet=False)
+        assert res.returncode == 0, res.stderr
+        cmd = next(line for line in res.stdout.splitlines() if "train_estimator.py" in line and "--clips" in line)
+        clips = cmd.split("--clips")[1].split("--videos")[0].split()
+        videos = cmd.split("--videos")[1].split("--config-json")[0].split()
+        runs[n] = (job_counts(res.stdout), clips, videos)
+    (one, clips1, videos1), (three, clips3, videos3) = runs[1], runs[3]
+    assert len(clips1) == len(videos1) == len(trajs["recon"])
+    assert len(clips3) == len(videos3) == 3 * len(trajs["recon"]) and len(set(videos3)) == len(videos3)
+    for clip, video in zip(clips3, videos3):  # a video's buffers are its own trajectory's
+        assert clip.removesuffix("buffers.json") == video.split("rgb/")[0]
+    assert sorted(set(clips3)) == sorted(clips1) and set(videos1) <= set(videos3)
+    assert three["render_rgb"] - one["render_rgb"] == 2 * len(trajs["recon"])
+    assert {k: v for k, v in three.items() if k != "render_rgb"} == {k: v for k, v in one.items() if k != "render_rgb"}
+
+
 def test_no_synthetic_trains_without_synthetic_pairs(default_config):
     counts = job_counts(dry_run("results/refiner/no_synthetic/model.pt").stdout)
     by, trajs = _split_counts(default_config)

@@ -80,7 +80,8 @@ class Splits(Section):
     train: NonNegativeFloat = Field(0.8, description="fraction of scenes giving training pairs")
     test: NonNegativeFloat = Field(0.1, description="fraction of scenes giving held-out benchmark pairs")
     recon: NonNegativeFloat = Field(0.1, description="fraction of scenes that train Phi's G-buffer estimator "
-                                    "(default backend); they render only their source video and buffers")
+                                    "(default backend); they render only their buffers and their videos under "
+                                    "scenes.recon_lightings lightings")
 
 
 class Scenes(Section):
@@ -98,6 +99,11 @@ class Scenes(Section):
     targets_per_trajectory: NonNegativeInt = Field(
         3, description="target lightings per trajectory besides its source lighting; lightings no pair uses are "
         "not rendered (3 x 3 trajectories x 320 train scenes = 2,880 synthetic pairs, the paper's ~3,000)")
+    recon_lightings: PositiveInt = Field(
+        1, description="lightings each recon-split trajectory is rendered under (its source and recon_lightings - 1 "
+        "others): the G-buffer estimator trains on every one of them, the same buffers under several lights, so that "
+        "it learns the light's colour apart from the albedo's; 1 = the source only. Each one is a Cycles render per "
+        "trajectory")
     trajectories_per_scene: PositiveInt = Field(3, description="trajectories per scene; motion configs cycle over "
                                                 "`motions`")
     motions: list[Motion] = Field(
@@ -620,7 +626,7 @@ class Config(Section):
 SIZE_KEYS: tuple[str, ...] = (
     "assets.procedural.count", "assets.curation.max_faces", "assets.curation_jobs",
     "scenes.count", "scenes.splits", "scenes.width", "scenes.height", "scenes.num_frames",
-    "scenes.lightings_per_scene", "scenes.targets_per_trajectory",
+    "scenes.lightings_per_scene", "scenes.targets_per_trajectory", "scenes.recon_lightings",
     "scenes.orbit_deg_per_frame", "scenes.light_rotation_deg_per_frame",
     "render.spp", "render.max_bounces", "proxy.spp", "longform.num_frames", "longform.spp",
     "real.dl3dv.max_scenes", "real.dl3dv.clips_per_scene", "mit.max_scenes", "mit.target_dirs",

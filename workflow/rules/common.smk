@@ -284,16 +284,16 @@ def scene_static_flag(wildcards):
 
 
 def estimator_training_inputs(wildcards):
-    """Ground-truth clips and source videos of the recon split (never train or test scenes)."""
-    recon = scenes_in_split("recon")
-    return {
-        "clips": gt_buffer_manifests(recon) if recon else [],
-        "videos": [
-            f"{L.gt_rgb(sid, t['id'], t['source_light'])}.json"
-            for sid in recon
-            for t in _PLANS[sid]["trajectories"]
-        ],
-    }
+    """Ground-truth clips of the recon split (never train or test scenes) and their videos, paired: clip k is
+    the buffers of video k, one per lighting the trajectory is rendered under (scenes.recon_lightings; the clip
+    repeats)."""
+    pairs = [
+        (L.gt_clip_manifest(sid, t["id"]), f"{L.gt_rgb(sid, t['id'], light)}.json")
+        for sid in scenes_in_split("recon")
+        for t in _PLANS[sid]["trajectories"]
+        for light in t["render_lights"]
+    ]
+    return {"clips": [c for c, _ in pairs], "videos": [v for _, v in pairs]}
 
 
 def inputs_file(*names):
