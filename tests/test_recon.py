@@ -1,5 +1,8 @@
 """Reconstruction stack: Align, camera helpers, the estimator's plumbing, and the default backend's pieces."""
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -10,6 +13,7 @@ from lightcrafter.recon import align
 from lightcrafter.recon.default import depth_scales, normals_from_depth, up_rotation
 
 W, H, N = 48, 32, 4
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _rot(axis, angle):
@@ -311,6 +315,33 @@ def test_estimator_learns_a_clip(tmp_path):
     _, curve = est.train_estimator(samples, val, cfg, log=lambda m: None)
     assert curve[-1]["normal_deg"] < 0.7 * untrained["normal_deg"]
     assert curve[-1]["mask_iou"] > 0.9
+
+
+def test_training_script_takes_a_clip_once_per_video_it_is_paired_with(tmp_path):
+    """scripts/train_estimator.py with one clip under two lights (scenes.recon_lightings: 2): every frame of both
+    videos trains (a clip repeats in --clips, once per video), and the weights are written."""
+    import subprocess
+    import sys
+
+    from lightcrafter.recon import estimator as est
+
+    _gt_clip(tmp_path / "gt")
+    views, _ = clipmod.read_clip(tmp_path / "gt")
+    videos = []
+    for light, tint in (("L0", (1.0, 0.9, 0.8)), ("L2", (0.6, 0.7, 1.0))):
+        for i, v in enumerate(views):
+            shade = np.clip(v.buffers.normal[..., 2:], 0, 1) * np.asarray(tint, np.float32)
+            io.write_rgb_exr(tmp_path / "rgb" / light / f"{i:04d}.exr",
+                             np.where(v.buffers.mask[..., None] > 0, v.buffers.albedo * shade, 0.5).astype(np.float32))
+        videos.append(str(tmp_path / "rgb" / f"{light}.json"))
+    clip = str(tmp_path / "gt" / "buffers.json")
+    cfg = json.dumps({"widths": [8, 16], "steps": 2, "batch": 2, "crop": None, "eval_every": 2, "threads": 1})
+    res = subprocess.run([sys.executable, str(REPO / "scripts" / "train_estimator.py"), "--clips", clip, clip,
+                          "--videos", *videos, "--config-json", cfg, "--out", str(tmp_path / "m.pt"),
+                          "--curve", str(tmp_path / "curve.json")], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert f"train_estimator: {2 * len(views)} frames, 2 steps" in res.stdout
+    assert est.load(tmp_path / "m.pt").albedo_head == "direct"
 
 
 def test_static_detection_survives_a_rotating_light():
