@@ -11,7 +11,6 @@ under all its lights (all are used when there is only one trajectory).
 """
 
 import argparse
-import json
 from pathlib import Path
 
 import _cli  # puts the repository on sys.path; run() is the one error path
