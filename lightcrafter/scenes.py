@@ -107,7 +107,7 @@ def plan_scene(scfg: dict, seed: int, index: int) -> dict:
     rng = _rng(seed, index, 1)
     n_light = int(scfg["lightings_per_scene"])
     n_targets = int(scfg["targets_per_trajectory"])
-    n_recon = int(scfg.get("recon_lightings", 1))
+    n_recon = int(scfg["recon_lightings"])
     for key, value, needs in (("targets_per_trajectory", n_targets, n_targets + 1),
                               ("recon_lightings", n_recon, n_recon)):
         if needs > n_light:
