@@ -19,8 +19,8 @@ Conventions
   float32 (a sun texel of a PolyHaven HDRI exceeds 65504), as do confidences and the paper stack's
   inputs.
 * Display frames: produced only by :func:`linear_to_display` (exposure, then the sRGB
-  encoding curve from colour-science, clipped to [0, 1]); the same transform is used for
-  proxies and targets.
+  encoding curve of IEC 61966-2-1, checked against colour-science's, clipped to [0, 1]); the same
+  transform is used for proxies and targets.
 
 Every writer here is atomic: data goes to a temporary name in the destination folder and is
 renamed into place only when complete, so a killed job never leaves a file a rerun would trust.
@@ -349,25 +349,44 @@ def read_cameras(path: str | os.PathLike) -> tuple[int, int, np.ndarray, np.ndar
 
 
 # ----------------------------------------------------------------------------- display
+#: IEC 61966-2-1 sRGB encoding: linear segment below this linear value, power 1 / 2.4 above
+SRGB_LINEAR_KNEE = 0.0031308
+#: the same knee on display values (0.04045 in the standard's rounding; colour-science uses the exact value)
+SRGB_DISPLAY_KNEE = 12.92 * SRGB_LINEAR_KNEE
+
+
+def srgb_encode(x: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB encoding of linear values in [0, 1] (float64 in, float64 out).
+
+    Written out rather than taken from colour-science (whose ``cctf_encoding(x, function="sRGB")`` it equals to
+    1e-12, tests/test_io.py) because importing ``colour`` costs 1.7 s, and nearly every job of a run writes a
+    display frame: that import alone was about a tenth of the default run's job-seconds.
+    """
+    power = 1.055 * np.power(np.maximum(x, SRGB_LINEAR_KNEE), 1 / 2.4) - 0.055
+    return np.where(x <= SRGB_LINEAR_KNEE, 12.92 * x, power)
+
+
+def srgb_decode(v: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`srgb_encode` on [0, 1] (colour-science's ``cctf_decoding(v, function="sRGB")``)."""
+    power = np.power((np.maximum(v, SRGB_DISPLAY_KNEE) + 0.055) / 1.055, 2.4)
+    return np.where(v <= SRGB_DISPLAY_KNEE, v / 12.92, power)
+
+
 def linear_to_display(rgb_linear: np.ndarray, exposure_ev: float = 0.0) -> np.ndarray:
     """The one display transform: scale by 2**exposure_ev, sRGB-encode (IEC 61966-2-1), clip.
 
     Input is linear scene-referred RGB; output is display-referred float in [0, 1].
     NaN maps to 0, +inf to 1.
     """
-    import colour
-
     x = np.nan_to_num(np.asarray(rgb_linear, dtype=np.float64), nan=0.0, posinf=1.0, neginf=0.0)
     x = np.clip(x * (2.0**exposure_ev), 0.0, 1.0)
-    return np.clip(colour.cctf_encoding(x, function="sRGB"), 0.0, 1.0).astype(np.float32)
+    return np.clip(srgb_encode(x), 0.0, 1.0).astype(np.float32)
 
 
 def display_to_linear(rgb_display: np.ndarray, exposure_ev: float = 0.0) -> np.ndarray:
     """Inverse of :func:`linear_to_display` on [0, 1] (clipped highlights are not recovered)."""
-    import colour
-
     x = np.clip(np.asarray(rgb_display, dtype=np.float64), 0.0, 1.0)
-    return (colour.cctf_decoding(x, function="sRGB") / (2.0**exposure_ev)).astype(np.float32)
+    return (srgb_decode(x) / (2.0**exposure_ev)).astype(np.float32)
 
 
 def to_uint8(display: np.ndarray) -> np.ndarray:

@@ -111,3 +111,19 @@ def test_storage_precision_depth_float32_the_rest_half_and_radiance_clipped_to_h
     np.testing.assert_allclose(back[1:], rgb[1:], rtol=2.0**-11)
     io.write_rgb_exr(tmp_path / "f32.exr", rgb)
     assert (tmp_path / "f.exr").stat().st_size < 0.75 * (tmp_path / "f32.exr").stat().st_size
+
+
+def test_display_transform_is_colour_sciences_srgb_and_round_trips():
+    """io.linear_to_display writes the sRGB curve itself (importing colour costs every job 1.7 s); it must stay
+    colour-science's IEC 61966-2-1 curve, at the knee and in the shadows included, and invert exactly."""
+    import colour
+
+    x = np.concatenate([np.linspace(0.0, 1.0, 10001), [io.SRGB_LINEAR_KNEE, 1e-6, 1e-3, 0.0031, 0.0032]])
+    np.testing.assert_allclose(io.srgb_encode(x), colour.cctf_encoding(x, function="sRGB"), rtol=0, atol=1e-12)
+    v = np.concatenate([np.linspace(0.0, 1.0, 10001), [io.SRGB_DISPLAY_KNEE, 0.04045, 0.04, 0.041]])
+    np.testing.assert_allclose(io.srgb_decode(v), colour.cctf_decoding(v, function="sRGB"), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(io.display_to_linear(io.linear_to_display(x)), x, atol=1e-6)
+    # exposure, clipping and non-finite values: NaN -> 0, +inf -> 1, overexposed -> 1
+    out = io.linear_to_display(np.array([np.nan, np.inf, -1.0, 0.5, 2.0]), exposure_ev=1.0)
+    np.testing.assert_allclose(out, [0.0, 1.0, 0.0, 1.0, 1.0], atol=1e-7)
+    assert out.dtype == np.float32
