@@ -405,6 +405,9 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
         "render": {"spp": int(render_cfg["spp"]), "seed": int(render_cfg["seed"]),
                    "max_bounces": int(render_cfg["max_bounces"]),
                    "denoiser": str(render_cfg.get("denoiser", "none")),
+                   "denoise_quality": str(render_cfg.get("denoise_quality", "high")),
+                   "target_denoise_quality": str(render_cfg.get("target_denoise_quality")
+                                                 or render_cfg.get("denoise_quality", "high")),
                    "clamp_indirect": float(render_cfg.get("clamp_indirect", 0.0))},
         "ground": {"size_m": float(scfg["ground_size_m"]), "material": _ground_material(rng, scfg)},
         "objects": objects,

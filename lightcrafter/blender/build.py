@@ -44,6 +44,8 @@ from lightcrafter.lights import resolve_hdri
 from lightcrafter.scenes import GROUND_PATTERNS, PRIMITIVE_SHAPES, lighting, trajectory  # noqa: F401
 
 AOV_ALBEDO, AOV_ROUGHNESS, AOV_METALLIC = "albedo", "roughness", "metallic"
+#: OIDN networks Cycles offers (``denoising_quality``), slowest and best first
+DENOISE_QUALITIES = ("high", "balanced", "fast")
 # File-name keys (lower case, matched against the stem) for texture-set ground materials.
 TEXTURE_SET_KEYS = {
     # PolyHaven: <name>_diff_1k, _rough_, _nor_gl_; ambientCG: <name>_Color, _Roughness, _NormalGL, _Metalness
@@ -206,6 +208,7 @@ def configure_render(
     buffers: bool,
     threads: int | None = None,
     denoiser: str | None = None,
+    denoise_quality: str = "high",
     clamp_indirect: float = 0.0,
     device: str = "cpu",
 ) -> str:
@@ -213,7 +216,8 @@ def configure_render(
     (:func:`select_device`).
 
     ``denoiser``: None (raw path tracing) or ``"oidn"`` (Intel Open Image Denoise, bundled with Cycles,
-    guided by the albedo and normal passes, accurate prefilter). ``clamp_indirect``: maximum radiance
+    guided by the albedo and normal passes, accurate prefilter). ``denoise_quality``: OIDN's ``high`` |
+    ``balanced`` | ``fast`` network (Cycles' ``denoising_quality``). ``clamp_indirect``: maximum radiance
     of one indirect-light sample (0 = off; Cycles' ``sample_clamp_indirect``), the light-path clamp
     that removes fireflies from rare caustic/glossy paths at the price of a little energy.
     """
@@ -225,11 +229,14 @@ def configure_render(
     sc.cycles.use_adaptive_sampling = False
     if denoiser not in (None, "none", "oidn"):
         raise DataError(f"render.denoiser={denoiser!r}: use 'none' or 'oidn'")
+    if denoise_quality not in DENOISE_QUALITIES:
+        raise DataError(f"render.denoise_quality={denoise_quality!r}: use one of {', '.join(DENOISE_QUALITIES)}")
     sc.cycles.use_denoising = denoiser == "oidn"
     if denoiser == "oidn":
         sc.cycles.denoiser = "OPENIMAGEDENOISE"
         sc.cycles.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         sc.cycles.denoising_prefilter = "ACCURATE"
+        sc.cycles.denoising_quality = denoise_quality.upper()
     sc.cycles.sample_clamp_direct = 0.0
     sc.cycles.sample_clamp_indirect = float(clamp_indirect)
     sc.cycles.seed = int(spec.get("render", {}).get("seed", 0))

@@ -28,8 +28,9 @@ Sampling choices
   the object and what lies behind it mix; where the pixel centre sees a surface the second render missed
   (coverage under 1 %), the centre's values are kept. Light bounces are 0: only first-hit passes are needed.
 * RGB: ``spec.render.spp`` samples, Cycles' default Blackman-Harris filter (1.5 px), ``max_bounces``
-  from the spec, fixed seed, ``spec.render.denoiser`` (none | oidn) and ``clamp_indirect`` (see
-  benchmarks/cycles_spp.py for the choice of all three).
+  from the spec, fixed seed, ``spec.render.denoiser`` (none | oidn), its ``denoise_quality`` (OIDN's network;
+  ``target_denoise_quality`` for videos that are only targets: :func:`denoise_quality_of`) and ``clamp_indirect``
+  (see benchmarks/cycles_spp.py for the choice of all of them).
 """
 
 from __future__ import annotations
@@ -198,6 +199,18 @@ def _device_record(manifest_dir: Path, used: str | None, manifest: str = "buffer
     return None
 
 
+def denoise_quality_of(spec: dict, traj: dict, light_id: str) -> str:
+    """OIDN's network for the video of ``traj`` under ``light_id``: ``render.target_denoise_quality`` for a
+    video that is only ever a target (a target light other than the source, outside the recon split), else
+    ``render.denoise_quality``. A video Φ reconstructs or the estimator trains on keeps the latter: structure
+    from motion on frames of the balanced network lost more clips than on the high one (README)."""
+    rcfg = spec.get("render", {})
+    quality = str(rcfg.get("denoise_quality", "high"))
+    target_only = (spec.get("split") != "recon" and light_id in traj.get("target_lights", [])
+                   and light_id != traj.get("source_light"))
+    return str(rcfg.get("target_denoise_quality") or quality) if target_only else quality
+
+
 def render_rgb(
     spec: dict, traj_id: str, light_id: str, out_dir, *, threads: int | None = None, spp: int | None = None,
     device: str = "cpu",
@@ -219,6 +232,7 @@ def render_rgb(
     n = int(spec["num_frames"])
     build.check_inputs(spec, light_id)
     denoiser = rcfg.get("denoiser", "none")
+    denoise_quality = denoise_quality_of(spec, traj, light_id)
     clamp_indirect = float(rcfg.get("clamp_indirect", 0.0))
     inputs = {"what": "rgb", "spec": spec, "trajectory": traj_id, "light": light_id, "spp": spp,
               "filter_px": RGB_FILTER_WIDTH_PX}
@@ -237,6 +251,7 @@ def render_rgb(
             buffers=False,
             threads=threads,
             denoiser=denoiser,
+            denoise_quality=denoise_quality,
             clamp_indirect=clamp_indirect,
             device=device,
         )
@@ -271,6 +286,7 @@ def render_rgb(
                 "seed": int(rcfg.get("seed", 0)),
                 "pixel_filter": f"blackman-harris {RGB_FILTER_WIDTH_PX} px",
                 "denoiser": denoiser,
+                **({"denoise_quality": denoise_quality} if denoiser == "oidn" else {}),
                 "clamp_indirect": clamp_indirect,
                 "device": _device_record(out_dir / "rgb", used, f"{light_id}.json"),
             },

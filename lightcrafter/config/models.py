@@ -150,6 +150,11 @@ class Render(Section):
     max_bounces: NonNegativeInt = Field(6, description="Cycles light-path bounces")
     denoiser: Literal["none", "oidn"] = Field("oidn", description="none | oidn (Intel Open Image Denoise, albedo + "
                                               "normal guided)")
+    denoise_quality: Literal["high", "balanced", "fast"] = Field(
+        "high", description="OIDN's network (Cycles' denoising_quality) for the videos Phi sees")
+    target_denoise_quality: Optional[Literal["high", "balanced", "fast"]] = Field(
+        None, description="OIDN's network for videos that are only targets (a target light other than the "
+        "source; scored in PSNR and SSIM, never reconstructed); null = denoise_quality")
     clamp_indirect: NonNegativeFloat = Field(0.0, description="maximum radiance of one indirect-light sample "
                                              "(0 = off)")
     device: Literal["auto", "cpu", "cuda", "optix"] = Field(
