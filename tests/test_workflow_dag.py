@@ -42,10 +42,10 @@ def test_default_config_ground_truth_counts(default_config):
     counts = job_counts(res.stdout)
     exp = expected_gt_counts(default_config)
     assert {k: counts.get(k, 0) for k in exp} == exp
-    # The default: 6 scenes x 3 trajectories; train/test trajectories use 2 of 4 lightings; the 2 recon
-    # scenes (the estimator's training data) are not rendered: the default ships the estimator's weights.
+    # The default: 8 scenes x 3 trajectories; the 6 train/test scenes' trajectories use 2 of 4 lightings; the 2
+    # recon scenes (the estimator's training data) are not rendered: the default ships the estimator's weights.
     assert default_config["recon"]["estimator"]["weights"] == "shipped"
-    assert counts["render_buffers"] == 12 and counts["render_rgb"] == 4 * 3 * 2
+    assert counts["render_buffers"] == 6 * 3 and counts["render_rgb"] == 6 * 3 * 2
     # Nothing beyond ground truth is pulled in by this target.
     assert set(counts) == set(exp) | {"ground_truth", "summarize_ground_truth"}
 
@@ -90,18 +90,17 @@ def test_clean_buffers_training_needs_no_reconstruction(default_config, paper_co
     assert counts == expected
 
 
-def test_the_held_out_config_has_clips_for_intervals_and_real_test_clips_from_four_videos(repo):
-    """config/held_out.yaml: enough synthetic test pairs for an interval (MIN_CLIPS_FOR_INTERVAL) and >= 4 real
-    test clips, each from its own video, none of which trains; checked on disk as a run starts (the OpenCV
-    sample videos that scripts/setup.sh installs are found)."""
-    from lightcrafter.config import effective_config
+def test_the_default_holds_out_clips_for_intervals_and_real_test_clips_from_four_videos(default_config):
+    """The default run: at least 8 synthetic test pairs (and MIN_CLIPS_FOR_INTERVAL) and >= 4 real test clips,
+    each from its own video, none of which trains; checked on disk as a run starts (the OpenCV sample videos
+    that scripts/setup.sh installs are found)."""
     from lightcrafter.evaluation import MIN_CLIPS_FOR_INTERVAL
     from lightcrafter.ingest import real_clips
 
-    cfg = effective_config([repo / "config" / "held_out.yaml"])
-    by, trajs = _split_counts(cfg)
+    by, trajs = _split_counts(default_config)
     assert sum(len(t["target_lights"]) for t in trajs["test"]) >= max(8, MIN_CLIPS_FOR_INTERVAL)
-    real = real_clips(cfg["real"]).values()
+    assert len(by["test"]) >= 3  # the synthetic test clips come from several scenes, not one scene's trajectories
+    real = real_clips(default_config["real"]).values()
     test_videos = [c["video"] for c in real if c["split"] == "test"]
     assert len(test_videos) >= 4 and len(set(test_videos)) == len(test_videos)
     assert not set(test_videos) & {c["video"] for c in real if c["split"] == "train"}
