@@ -42,6 +42,15 @@ def units(cfg: dict) -> dict[str, tuple[str, float, int]]:
     }
 
 
+def denoiser_networks(cfg: dict) -> tuple[str, str]:
+    """(OIDN network of the videos Phi sees, of target-only videos) that a configuration's Cycles renders use."""
+    r = cfg.get("render", {})
+    if r.get("denoiser", "none") != "oidn":
+        return ("none", "none")
+    q = str(r.get("denoise_quality", "high"))
+    return (q, str(r.get("target_denoise_quality") or q))
+
+
 GPU_AT_PAPER_SCALE = {"train_refiner": "GPU (CogVideoX-5B); the paper reports 48 GPU-hours",
                       "infer_refiner": "GPU (about 8 min per 49-frame clip on an A6000, paper)",
                       "reconstruct_real": "GPU with recon.backend paper_stack (MegaSAM, DiffusionRenderer)",
@@ -67,8 +76,12 @@ def project(measured: list[dict], run_cfg: dict, target_cfg: dict) -> dict:
             continue
         ch = m["cpu_s"] / n_run * n_tgt / 3600
         total += ch
+        note = f"{m['cpu_s'] / n_run:.3g} CPU s per unit measured here"
+        if stage == "render_rgb" and denoiser_networks(run_cfg) != denoiser_networks(target_cfg):
+            note += ("; OIDN networks differ (this run: {}, projected: {}): the measured rate is not the projected "
+                     "run's".format(*(", ".join(denoiser_networks(c)) for c in (run_cfg, target_cfg))))
         stages.append({"stage": stage, "jobs": jobs, "unit": unit, "units": round(n_tgt, 2), "core_hours": round(ch, 2),
-                       "note": f"{m['cpu_s'] / n_run:.3g} CPU s per unit measured here"})
+                       "note": note})
     for stage, note in GPU_AT_PAPER_SCALE.items():
         stages.append({"stage": stage, "jobs": None, "unit": "", "units": None, "core_hours": None, "note": note})
     return {"method": __doc__.split("\n\n")[1].replace("\n", " "), "stages": stages,

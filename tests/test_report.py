@@ -226,3 +226,18 @@ def test_real_clips_show_their_pseudo_input_score_and_camera_curve(tmp_path):
     row_b = html.split("<td>clipB</td>")[1].split("</tr>")[0]
     assert "<td>19.25</td>" in row_a and "<td>1.6</td>" in row_a
     assert "19.25" not in row_b  # a clip not fitted shows no score
+
+
+def test_cost_projection_says_when_the_measured_renders_used_other_oidn_networks(default_config, paper_config):
+    """The default renders target-only videos with OIDN's balanced network, the paper config every video with the
+    high one: render_rgb's projected core-hours rest on a cheaper rate, and the projection says so."""
+    from lightcrafter.costs import denoiser_networks, project
+
+    measured = [{"stage": "render_rgb", "cpu_s": 700.0}]
+    assert denoiser_networks(default_config) == ("high", "balanced")
+    assert denoiser_networks(paper_config) == ("high", "high")
+    row = next(r for r in project(measured, default_config, paper_config)["stages"] if r["stage"] == "render_rgb")
+    assert row["core_hours"] > 0
+    assert "OIDN networks differ (this run: high, balanced, projected: high, high)" in row["note"]
+    same = next(r for r in project(measured, default_config, default_config)["stages"] if r["stage"] == "render_rgb")
+    assert "OIDN" not in same["note"]
