@@ -335,8 +335,9 @@ def test_oidn_denoiser_brings_few_samples_closer_to_many(scene, orbit_buffers, t
 
 def test_target_only_videos_take_the_target_denoiser_network_and_what_phi_sees_keeps_its_own(scene):
     """render.target_denoise_quality applies to a target light other than the source, outside the recon split;
-    a source video, a rotating-light clip whose target is its source, and every recon-split video (the
-    estimator trains on them) take render.denoise_quality; null falls back to it."""
+    a source video, a clip whose target is its own source (the hand-built scene has one; the planner never
+    draws one) and every recon-split video (the estimator trains on them) take render.denoise_quality; null
+    falls back to it."""
     from lightcrafter.blender import build
     from lightcrafter.blender.render import denoise_quality_of
 

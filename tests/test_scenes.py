@@ -40,6 +40,24 @@ def test_plan_agrees_with_spec(default_config):
             assert {k: st[k] for k in pt} == pt
 
 
+def test_the_spec_carries_both_denoiser_networks_and_a_null_target_network_falls_back(default_config):
+    """render.denoise_quality and render.target_denoise_quality reach the scene spec that render_rgb reads
+    (lightcrafter.blender.render.denoise_quality_of); without them every video would silently take OIDN's
+    high network."""
+    from lightcrafter.blender.render import denoise_quality_of
+
+    cfg = copy.deepcopy(default_config)
+    cfg["render"].update(denoise_quality="high", target_denoise_quality="balanced")
+    i = next(i for i in range(cfg["scenes"]["count"]) if scenes.split_of(cfg["scenes"], cfg["seed"], i) == "train")
+    spec = _spec(cfg, i)
+    assert spec["render"]["denoise_quality"] == "high" and spec["render"]["target_denoise_quality"] == "balanced"
+    traj = spec["trajectories"][0]
+    assert denoise_quality_of(spec, traj, traj["source_light"]) == "high"
+    assert denoise_quality_of(spec, traj, traj["target_lights"][0]) == "balanced"
+    cfg["render"].update(denoise_quality="fast", target_denoise_quality=None)
+    assert _spec(cfg, i)["render"]["target_denoise_quality"] == "fast"
+
+
 def test_splits_are_disjoint_fixed_and_sized(paper_config):
     s = paper_config["scenes"]
     splits = [scenes.split_of(s, 0, i) for i in range(s["count"])]

@@ -154,7 +154,7 @@ class Render(Section):
         "high", description="OIDN's network (Cycles' denoising_quality) for the videos Phi sees")
     target_denoise_quality: Optional[Literal["high", "balanced", "fast"]] = Field(
         None, description="OIDN's network for videos that are only targets (a target light other than the "
-        "source; scored in PSNR and SSIM, never reconstructed); null = denoise_quality")
+        "source: targets of training pairs and of the benchmarks, never reconstructed); null = denoise_quality")
     clamp_indirect: NonNegativeFloat = Field(0.0, description="maximum radiance of one indirect-light sample "
                                              "(0 = off)")
     device: Literal["auto", "cpu", "cuda", "optix"] = Field(
