@@ -11,7 +11,7 @@ from CPU timings; the paper reports 48 GPU-hours of refiner training.
 
 from __future__ import annotations
 
-from .scenes import rendered_plans
+from .scenes import denoise_networks, rendered_plans
 
 
 def units(cfg: dict) -> dict[str, tuple[str, float, int]]:
@@ -45,10 +45,7 @@ def units(cfg: dict) -> dict[str, tuple[str, float, int]]:
 def denoiser_networks(cfg: dict) -> tuple[str, str]:
     """(OIDN network of the videos Phi sees, of target-only videos) that a configuration's Cycles renders use."""
     r = cfg.get("render", {})
-    if r.get("denoiser", "none") != "oidn":
-        return ("none", "none")
-    q = str(r.get("denoise_quality", "high"))
-    return (q, str(r.get("target_denoise_quality") or q))
+    return denoise_networks(r) if r.get("denoiser", "none") == "oidn" else ("none", "none")
 
 
 GPU_AT_PAPER_SCALE = {"train_refiner": "GPU (CogVideoX-5B); the paper reports 48 GPU-hours",

@@ -338,6 +338,13 @@ def _draw_content(scfg: dict, rng, accepted: list[dict], n_assets: int, n_prims:
     return objects, placed
 
 
+def denoise_networks(render_cfg: dict) -> tuple[str, str]:
+    """(OIDN network of the videos Phi sees, network of target-only videos) from a ``render`` config section or a
+    spec's ``render``: ``denoise_quality`` (default high) and ``target_denoise_quality``, which falls back to it."""
+    quality = str(render_cfg.get("denoise_quality") or "high")
+    return quality, str(render_cfg.get("target_denoise_quality") or quality)
+
+
 def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: dict,
                  hdris: list[str]) -> dict:
     """The full declarative scene spec for scene ``index`` (see docs/architecture.md)."""
@@ -405,9 +412,7 @@ def sample_scene(scfg: dict, render_cfg: dict, seed: int, index: int, manifest: 
         "render": {"spp": int(render_cfg["spp"]), "seed": int(render_cfg["seed"]),
                    "max_bounces": int(render_cfg["max_bounces"]),
                    "denoiser": str(render_cfg.get("denoiser", "none")),
-                   "denoise_quality": str(render_cfg.get("denoise_quality", "high")),
-                   "target_denoise_quality": str(render_cfg.get("target_denoise_quality")
-                                                 or render_cfg.get("denoise_quality", "high")),
+                   **dict(zip(("denoise_quality", "target_denoise_quality"), denoise_networks(render_cfg))),
                    "clamp_indirect": float(render_cfg.get("clamp_indirect", 0.0))},
         "ground": {"size_m": float(scfg["ground_size_m"]), "material": _ground_material(rng, scfg)},
         "objects": objects,

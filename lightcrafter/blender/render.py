@@ -42,6 +42,7 @@ import numpy as np
 
 from lightcrafter import clip, io
 from lightcrafter.blender import build
+from lightcrafter.scenes import denoise_networks
 
 BUFFER_SPP = 1
 BUFFER_FILTER_WIDTH_PX = 0.01  # Cycles' minimum: a point sample at the pixel centre
@@ -204,11 +205,10 @@ def denoise_quality_of(spec: dict, traj: dict, light_id: str) -> str:
     video that is only ever a target (a target light other than the source, outside the recon split), else
     ``render.denoise_quality``. A video Φ reconstructs or the estimator trains on keeps the latter: structure
     from motion on frames of the balanced network lost more clips than on the high one (README)."""
-    rcfg = spec.get("render", {})
-    quality = str(rcfg.get("denoise_quality", "high"))
+    quality, target_quality = denoise_networks(spec.get("render", {}))
     target_only = (spec.get("split") != "recon" and light_id in traj.get("target_lights", [])
                    and light_id != traj.get("source_light"))
-    return str(rcfg.get("target_denoise_quality") or quality) if target_only else quality
+    return target_quality if target_only else quality
 
 
 def render_rgb(
