@@ -411,3 +411,53 @@ def test_selection_refuses_candidates_that_add_a_block_grid(tmp_path, monkeypatc
     strict = {**base, "select": {**base["select"], "max_block_ratio": 0.5}}
     res = fitmod.fit_refiner(resolve_config(strict), pairs, tmp_path / "m2", progress=False)["selection"]
     assert not any(r["admissible"] for r in res["table"]) and res["chosen"]["residual_scale"] == 0.0
+
+
+def test_warp_ssim_ratio_sees_grain_that_does_not_follow_the_scene():
+    """The temporal rule's measure: a clip as consistent as its proxy scores 1; fresh noise on every frame (grain
+    that does not move with the scene) scores below 1; a one-frame clip has no answer and counts as 1."""
+    from lightcrafter.refiner.fit import warp_ssim_ratio
+    from lightcrafter.refiner.toy import toy_pair
+
+    item = toy_pair(4, num_frames=5, height=32, width=64)
+    cache: dict = {}
+    assert warp_ssim_ratio(item["proxy"], item, cache) == pytest.approx(1.0)
+    assert list(cache) == [item["pair_id"]]  # the target's flow is computed once per pair
+    grain = (item["proxy"] + 0.15 * torch.randn(item["proxy"].shape, generator=torch.Generator().manual_seed(0)))
+    assert warp_ssim_ratio(grain.clamp(-1, 1), item, cache) < 0.9
+    one = {**item, "proxy": item["proxy"][:, :1], "target": item["target"][:, :1]}
+    assert warp_ssim_ratio(grain[:, :1].clamp(-1, 1), one, {}) == 1.0
+
+
+def test_selection_refuses_candidates_less_consistent_over_time_than_the_proxy(tmp_path, monkeypatch):
+    """select.min_warp_ssim_ratio: a candidate whose validation clips are less consistent over time than the
+    proxy is not chosen even with the best score; when every candidate is, the most consistent one is. The anchor
+    alone is scored once per step (it ignores strength and guidance)."""
+    from lightcrafter.refiner import fit as fitmod
+
+    real_refine_fn = fitmod.refine_fn
+
+    def tagged(model, cfg, strength, guidance_scale, num_steps=None, residual_scale=None):
+        fn = real_refine_fn(model, cfg, strength, guidance_scale, num_steps, residual_scale)
+
+        def run(item):
+            out = fn(item)
+            out.residual = residual_scale
+            return out
+        return run
+
+    monkeypatch.setattr(fitmod, "refine_fn", tagged)
+    monkeypatch.setattr(fitmod, "warp_ssim_ratio", lambda out, item, cache: 0.97 if out.residual else 0.995)
+    pairs = _toy_manifest(tmp_path, ["s0", "s1"])
+    base = {**SMALL, "train": {"max_steps": 2, "grad_accum": 1}, "infer": {"num_steps": 4},
+            "select": {"val_scenes": 1, "strengths": [0.3, 0.6], "guidance_scales": [1.0, 2.0],
+                       "residual_scales": [0.0, 1.0], "min_warp_ssim_ratio": 0.99},
+            "baselines": {"regressor_steps": 0, "affine_colour": False}}
+    res = fitmod.fit_refiner(resolve_config(base), pairs, tmp_path / "m", progress=False)["selection"]
+    anchor_rows = [r for r in res["table"] if r["residual_scale"] == 0.0]
+    assert len(anchor_rows) == 1 and (anchor_rows[0]["strength"], anchor_rows[0]["guidance_scale"]) == (0.3, 1.0)
+    assert len(res["table"]) == 5 and all(r["admissible"] == (r["residual_scale"] == 0.0) for r in res["table"])
+    assert res["chosen"]["residual_scale"] == 0.0 and res["chosen"]["warp_ssim_ratio"] == 0.995
+    strict = {**base, "select": {**base["select"], "min_warp_ssim_ratio": 1.0}}
+    res = fitmod.fit_refiner(resolve_config(strict), pairs, tmp_path / "m2", progress=False)["selection"]
+    assert not any(r["admissible"] for r in res["table"]) and res["chosen"]["residual_scale"] == 0.0

@@ -207,6 +207,11 @@ class RefinerSelectSettings(_Section):
         None, description="candidates whose validation clips have more block-grid texture than this times the "
         "proxy's (lightcrafter.refiner.fit.block_ratio: 8- and 16-px blockiness, refined over proxy) are not chosen, "
         "whatever their score (the refiner's goal: within 10 % of the target's); null = no limit")
+    min_warp_ssim_ratio: Optional[PositiveFloat] = Field(
+        None, description="candidates whose validation clips are less consistent over time than this times the "
+        "proxy's (lightcrafter.refiner.fit.warp_ssim_ratio: Warp-SSIM with the target's optical flow, refined over "
+        "proxy) are not chosen, whatever their score (the refiner's goal: Warp-SSIM at least the proxy's); null = "
+        "no limit")
     metric: Literal["psnr_db", "ssim"] = Field("psnr_db", description="psnr_db | ssim: the validation score (mean "
                                                "over clips) that picks checkpoint, strength, guidance")
 

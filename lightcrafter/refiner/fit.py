@@ -14,7 +14,9 @@
    (trained jointly with the transformer): when the transformer's correction does not generalise to
    unseen scenes, validation says so and the refiner falls back to its anchor. With
    ``select.max_block_ratio`` a candidate whose clips carry more block-grid texture than that times the
-   proxy's (:func:`block_ratio`) is not chosen, whatever its score. Without validation
+   proxy's (:func:`block_ratio`) is not chosen, whatever its score, and with ``select.min_warp_ssim_ratio``
+   neither is one whose clips are less consistent over time than that times the proxy's
+   (:func:`warp_ssim_ratio`). Without validation
    scenes nothing is selected and ``infer.*`` is used as configured.
 4. **Baselines** (``baselines.*``): the one-step regressor (same network, trained on the fit pairs for
    ``baselines.regressor_steps``) and the affine colour fit, both scored on the same validation clips.
@@ -62,10 +64,11 @@ def _round_robin(records: list[dict], ids: list[str], limit: int) -> list[str]:
     return out[: max(int(limit), 0)]
 
 
-def score_method(fn, dataset, block_grid: bool = False) -> dict:
+def score_method(fn, dataset, block_grid: bool = False, temporal: dict | None = None) -> dict:
     """Apply ``fn(item) -> (3, N, H, W)`` to every item; per-pair scores, means and seconds per clip.
     ``block_grid``: also ``block_ratio``, the mean over pairs of the output's block-grid texture over the
-    proxy's (:func:`block_ratio`)."""
+    proxy's (:func:`block_ratio`). ``temporal``: a dict (reused across calls, it caches each pair's target flow
+    and proxy Warp-SSIM): also ``warp_ssim_ratio``, the mean over pairs of :func:`warp_ssim_ratio`."""
     rows, secs = [], []
     for i in range(len(dataset)):
         item = dataset[i]
@@ -75,11 +78,39 @@ def score_method(fn, dataset, block_grid: bool = False) -> dict:
         rows.append({"pair_id": item["pair_id"], **clip_scores(out, item["target"])})
         if block_grid:
             rows[-1]["block_ratio"] = block_ratio(out, item["proxy"])
+        if temporal is not None:
+            rows[-1]["warp_ssim_ratio"] = warp_ssim_ratio(out, item, temporal)
     res = {"pairs": rows, "psnr_db": float(np.mean([r["psnr_db"] for r in rows])),
            "ssim": float(np.mean([r["ssim"] for r in rows])), "seconds_per_clip": float(np.mean(secs))}
-    if block_grid:
-        res["block_ratio"] = float(np.mean([r["block_ratio"] for r in rows]))
+    for key in ("block_ratio", "warp_ssim_ratio"):
+        if rows and key in rows[0]:
+            res[key] = float(np.mean([r[key] for r in rows]))
     return res
+
+
+def warp_ssim_ratio(video, item: dict, cache: dict) -> float:
+    """Temporal consistency of a refined clip relative to its proxy's: Warp-SSIM of ``video`` over Warp-SSIM of
+    ``item["proxy"]``, both with the optical flow of ``item["target"]`` (the flow source of the evaluation,
+    :func:`lightcrafter.evaluation.warp_ssim`; 1 = as consistent as the proxy). Clips (3, N, H, W) in [-1, 1].
+    A clip without an answer (one frame, frames too small for OpenCV's DIS flow, no unoccluded pixel) counts as 1.
+    ``cache`` keeps each pair's flow and proxy Warp-SSIM by pair id."""
+    from lightcrafter.evaluation import compute_flows, no_flow_reason, warp_ssim
+
+    from .data import to_display_frames
+
+    key = item["pair_id"]
+    if key not in cache:
+        target = to_display_frames(item["target"])
+        if len(target) < 2 or no_flow_reason(target):
+            cache[key] = None
+        else:
+            flows = compute_flows(target)
+            cache[key] = (flows, warp_ssim(to_display_frames(item["proxy"]), flows=flows).value)
+    if cache[key] is None or not cache[key][1]:
+        return 1.0
+    flows, proxy_value = cache[key]
+    value = warp_ssim(to_display_frames(video), flows=flows).value
+    return 1.0 if value is None else float(value / proxy_value)
 
 
 def block_ratio(video, proxy) -> float:
@@ -107,6 +138,26 @@ def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_step
         return refine_video(model, item["proxy"][None], cfg, generator=gen, strength=strength,
                             guidance_scale=guidance_scale, num_steps=num_steps, residual_scale=residual_scale)[0]
     return fn
+
+
+def _within_limits(row: dict, max_block: float | None, min_warp: float | None) -> bool:
+    return ((max_block is None or row["block_ratio"] <= max_block)
+            and (min_warp is None or row["warp_ssim_ratio"] >= min_warp))
+
+
+def _least_violating(table: list[dict], max_block: float | None, min_warp: float | None) -> list[dict]:
+    """When no candidate is within both limits: those within the block limit if any (else the least blocky),
+    and among them the most consistent over time when that limit is set."""
+    pool = table
+    if max_block is not None:
+        pool = [r for r in table if r["block_ratio"] <= max_block]
+        if not pool:
+            least = min(r["block_ratio"] for r in table)
+            pool = [r for r in table if r["block_ratio"] == least]
+    if min_warp is not None:
+        most = max(r["warp_ssim_ratio"] for r in pool)
+        pool = [r for r in pool if r["warp_ssim_ratio"] == most]
+    return pool
 
 
 def _candidate_model(cfg: dict, out_dir: Path, step: int, final_step: int, ae_state: dict) -> Refiner:
@@ -163,39 +214,45 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     t0 = time.perf_counter()
     if selecting:
         table = []
-        max_block = sel.get("max_block_ratio")
+        max_block, min_warp = sel.get("max_block_ratio"), sel.get("min_warp_ssim_ratio")
+        flow_cache: dict | None = {} if min_warp is not None else None
         for step in steps:
             model = _candidate_model(cfg, out_dir, step, max_steps, final["ae"])
             for s, g, rs in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"]),
                                               sorted(sel["residual_scales"], reverse=True)):
-                if float(rs) == 0.0 and float(g) != min(sel["guidance_scales"]):
-                    continue  # the anchor alone ignores guidance: score it once per step and strength
+                if float(rs) == 0.0 and (float(g) != min(sel["guidance_scales"]) or float(s) != min(sel["strengths"])):
+                    continue  # the anchor alone ignores guidance and, to rounding, strength: score it once per
+                    # step, at the smallest of each
                 sc = score_method(refine_fn(model, cfg, float(s), float(g), residual_scale=float(rs)), val_ds,
-                                  block_grid=max_block is not None)
+                                  block_grid=max_block is not None, temporal=flow_cache)
                 row = {"step": step, "strength": float(s), "guidance_scale": float(g),
                        "residual_scale": float(rs), "psnr_db": sc["psnr_db"], "ssim": sc["ssim"],
                        "seconds_per_clip": sc["seconds_per_clip"]}
                 if max_block is not None:
                     row["block_ratio"] = sc["block_ratio"]
-                    row["admissible"] = sc["block_ratio"] <= max_block
+                if min_warp is not None:
+                    row["warp_ssim_ratio"] = sc["warp_ssim_ratio"]
+                if max_block is not None or min_warp is not None:
+                    row["admissible"] = _within_limits(row, max_block, min_warp)
                 table.append(row)
-                log.info("validation step %d strength %.2f guidance %.1f residual %.1f: %.3f dB, SSIM %.4f%s", step,
+                log.info("validation step %d strength %.2f guidance %.1f residual %.1f: %.3f dB, SSIM %.4f%s%s", step,
                          s, g, rs, sc["psnr_db"], sc["ssim"], "" if max_block is None else
-                         f", block grid x{sc['block_ratio']:.2f} of the proxy's")
+                         f", block grid x{sc['block_ratio']:.2f} of the proxy's", "" if min_warp is None else
+                         f", Warp-SSIM x{sc['warp_ssim_ratio']:.3f} of the proxy's")
         metric = sel["metric"]
         pool = [r for r in table if r.get("admissible", True)]
-        if not pool:  # every candidate adds a block grid: the least blocky one
-            log.info("every candidate exceeds select.max_block_ratio %.2f; the one with the least block grid is "
-                     "chosen", max_block)
-            least = min(r["block_ratio"] for r in table)
-            pool = [r for r in table if r["block_ratio"] == least]
+        if not pool:
+            pool = _least_violating(table, max_block, min_warp)
+            log.info("no candidate is within select.max_block_ratio %s and select.min_warp_ssim_ratio %s; the least "
+                     "violating is chosen", max_block, min_warp)
         # ties go to the earlier step, the smaller strength and guidance, and the full model (residual 1)
         best = max(pool, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"],
                                         r["residual_scale"]))
         chosen = {"step": best["step"], "strength": best["strength"], "guidance_scale": best["guidance_scale"],
                   "residual_scale": best["residual_scale"], "metric": metric, "value": best[metric]}
-        if max_block is not None:
-            chosen["block_ratio"] = best["block_ratio"]
+        for key in ("block_ratio", "warp_ssim_ratio"):
+            if key in best:
+                chosen[key] = best[key]
         if best["step"] != max_steps:
             snap = torch.load(snapshot_path(out_dir, best["step"]), map_location="cpu", weights_only=False)
             chosen_sd = {k: snap[k] for k in weight_keys if k in snap}
