@@ -241,3 +241,20 @@ def test_cost_projection_says_when_the_measured_renders_used_other_oidn_networks
     assert "OIDN networks differ (this run: high, balanced, projected: high, high)" in row["note"]
     same = next(r for r in project(measured, default_config, default_config)["stages"] if r["stage"] == "render_rgb")
     assert "OIDN" not in same["note"]
+
+
+def test_selection_section_says_what_validation_refused():
+    """The report's selection table gives each variant's choice with its block-grid and Warp-SSIM ratios and how
+    many candidates were within the limits; a variant without selection says why."""
+    from lightcrafter.report import _selection_section
+
+    table = [{"residual_scale": 1.0, "admissible": False}, {"residual_scale": 0.0, "admissible": True},
+             {"residual_scale": 1.0, "admissible": False}]
+    chosen = {"step": 25, "strength": 0.1, "guidance_scale": 1.0, "residual_scale": 0.0, "metric": "psnr_db",
+              "value": 20.49, "block_ratio": 1.0016, "warp_ssim_ratio": 1.0046}
+    evals = {("full", "synthetic"): {"inference": {"selection": {"chosen": chosen, "table": table,
+                                                                 "val_proxy": {"psnr_db": 20.81}}}},
+             ("no_real", "synthetic"): {"inference": {"selection": {"chosen": None, "note": "selection off"}}}}
+    html = _selection_section(evals)
+    assert "<td>1 of 3</td>" in html and "<td>1.005</td>" in html and "<td>1.002</td>" in html
+    assert "<td>selection off</td>" in html and "None" not in html

@@ -57,6 +57,8 @@ def _table(rows: list[dict], keys: list[str], labels: dict | None = None) -> str
 
 
 def _fmt(v) -> str:
+    if v is None:  # no value (e.g. no limit configured): an empty cell, as for a missing key
+        return ""
     if isinstance(v, float):
         return f"{v:.4g}" if abs(v) < 1e4 else f"{v:.3e}"
     if isinstance(v, (list, tuple)):

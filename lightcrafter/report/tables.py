@@ -144,13 +144,25 @@ def _selection_section(evals: dict) -> str:
         rows.append({"variant": v, "step": ch.get("step"), "strength": ch.get("strength"),
                      "guidance": ch.get("guidance_scale"), "residual": ch.get("residual_scale", 1.0),
                      "val_refined_db": ch.get("value") if ch.get("metric") == "psnr_db" else None,
-                     "val_proxy_db": (sel.get("val_proxy") or {}).get("psnr_db"), "note": sel.get("note")})
+                     "val_proxy_db": (sel.get("val_proxy") or {}).get("psnr_db"),
+                     "val_block_ratio": ch.get("block_ratio"), "val_warp_ssim_ratio": ch.get("warp_ssim_ratio"),
+                     "admissible": _admissible_count(sel.get("table")), "note": sel.get("note")})
     if not rows:
         return ""
     return ("<h3>Refiner settings chosen on validation scenes (never test)</h3><p class='note'>residual 0 = the "
-            "learned latent map of the proxy alone (the transformer's correction did not help on validation); "
-            "1 = the full refiner.</p>" + _table(rows, ["variant", "step", "strength", "guidance", "residual",
-                                                         "val_refined_db", "val_proxy_db", "note"]))
+            "learned anchor of the proxy alone (a colour map and a small kernel, refiner.model.anchor_space), "
+            "1 = the full refiner: the transformer's correction scored lower on validation, or every candidate "
+            "with it was refused (admissible: candidates within refiner.select.max_block_ratio, the block grid "
+            "over the proxy's, and refiner.select.min_warp_ssim_ratio, the Warp-SSIM over the proxy's).</p>"
+            + _table(rows, ["variant", "step", "strength", "guidance", "residual", "val_refined_db", "val_proxy_db",
+                            "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"]))
+
+
+def _admissible_count(table) -> str | None:
+    """'k of n' candidates within the selection's limits (None without a table or without limits)."""
+    if not table or not any("admissible" in r for r in table):
+        return None
+    return f"{sum(bool(r.get('admissible', True)) for r in table)} of {len(table)}"
 
 
 # The paper's orderings: (name, (variant, bench, method) on the left, the same on the right); PSNR.
