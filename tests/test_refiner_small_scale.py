@@ -458,6 +458,7 @@ def test_selection_refuses_candidates_less_consistent_over_time_than_the_proxy(t
     assert len(anchor_rows) == 1 and (anchor_rows[0]["strength"], anchor_rows[0]["guidance_scale"]) == (0.3, 1.0)
     assert len(res["table"]) == 5 and all(r["admissible"] == (r["residual_scale"] == 0.0) for r in res["table"])
     assert res["chosen"]["residual_scale"] == 0.0 and res["chosen"]["warp_ssim_ratio"] == 0.995
+    assert (res["admissible_candidates"], res["candidates"]) == (1, 5)
     strict = {**base, "select": {**base["select"], "min_warp_ssim_ratio": 1.0}}
     res = fitmod.fit_refiner(resolve_config(strict), pairs, tmp_path / "m2", progress=False)["selection"]
     assert not any(r["admissible"] for r in res["table"]) and res["chosen"]["residual_scale"] == 0.0

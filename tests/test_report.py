@@ -248,11 +248,10 @@ def test_selection_section_says_what_validation_refused():
     many candidates were within the limits; a variant without selection says why."""
     from lightcrafter.report import _selection_section
 
-    table = [{"residual_scale": 1.0, "admissible": False}, {"residual_scale": 0.0, "admissible": True},
-             {"residual_scale": 1.0, "admissible": False}]
     chosen = {"step": 25, "strength": 0.1, "guidance_scale": 1.0, "residual_scale": 0.0, "metric": "psnr_db",
               "value": 20.49, "block_ratio": 1.0016, "warp_ssim_ratio": 1.0046}
-    evals = {("full", "synthetic"): {"inference": {"selection": {"chosen": chosen, "table": table,
+    evals = {("full", "synthetic"): {"inference": {"selection": {"chosen": chosen, "candidates": 3,
+                                                                 "admissible_candidates": 1,
                                                                  "val_proxy": {"psnr_db": 20.81}}}},
              ("no_real", "synthetic"): {"inference": {"selection": {"chosen": None, "note": "selection off"}}}}
     html = _selection_section(evals)

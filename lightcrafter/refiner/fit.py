@@ -258,7 +258,8 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
             chosen_sd = {k: snap[k] for k in weight_keys if k in snap}
         proxy = score_method(lambda item: item["proxy"], val_ds)
         summary["selection"] = {"chosen": chosen, "table": table, "val_proxy": {k: proxy[k] for k in ("psnr_db", "ssim")},
-                                "num_val_pairs": len(val_ds), "note": carve["note"]}
+                                "num_val_pairs": len(val_ds), "note": carve["note"], "candidates": len(table),
+                                "admissible_candidates": sum(bool(r.get("admissible", True)) for r in table)}
         log.info("chosen on validation: %s (proxy alone %.3f dB)", chosen, proxy["psnr_db"])
     else:
         summary["selection"] = {"chosen": None, "note": carve["note"] if float(sel["val_scenes"]) > 0

@@ -146,7 +146,7 @@ def _selection_section(evals: dict) -> str:
                      "val_refined_db": ch.get("value") if ch.get("metric") == "psnr_db" else None,
                      "val_proxy_db": (sel.get("val_proxy") or {}).get("psnr_db"),
                      "val_block_ratio": ch.get("block_ratio"), "val_warp_ssim_ratio": ch.get("warp_ssim_ratio"),
-                     "admissible": _admissible_count(sel.get("table")), "note": sel.get("note")})
+                     "admissible": _admissible_count(sel), "note": sel.get("note")})
     if not rows:
         return ""
     return ("<h3>Refiner settings chosen on validation scenes (never test)</h3><p class='note'>residual 0 = the "
@@ -158,11 +158,11 @@ def _selection_section(evals: dict) -> str:
                             "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"]))
 
 
-def _admissible_count(table) -> str | None:
-    """'k of n' candidates within the selection's limits (None without a table or without limits)."""
-    if not table or not any("admissible" in r for r in table):
+def _admissible_count(sel: dict) -> str | None:
+    """'k of n' candidates within the selection's limits (None when the record has no count)."""
+    if sel.get("admissible_candidates") is None or not sel.get("candidates"):
         return None
-    return f"{sum(bool(r.get('admissible', True)) for r in table)} of {len(table)}"
+    return f"{sel['admissible_candidates']} of {sel['candidates']}"
 
 
 # The paper's orderings: (name, (variant, bench, method) on the left, the same on the right); PSNR.
