@@ -320,8 +320,8 @@ def test_ground_plane_turned_to_the_predicted_normals_keeps_its_pixels_and_takes
 def test_depth_sfm_ground_takes_the_mean_of_the_depths_and_the_sfm_points_tilt():
     """The depth puts the ground 6 deg off +Z; SfM points seen on it lie on a plane 2 deg off the other way
     (plus points on an object above it, which the trimmed fit drops): ``depth_sfm`` turns the snapped plane to
-    the mean of the two normals, through the inliers' offset. Too few points seen on the ground, or no SfM
-    at all, keep the depth's plane."""
+    the mean of the two normals, through the inliers' offset; with ``sfm_weight`` 1 to the SfM points' plane
+    alone. Too few points seen on the ground, or no SfM at all, keep the depth's plane."""
     import math
 
     from lightcrafter.recon.default import MIN_SFM_GROUND_POINTS, plane_depth, snap_to_ground_plane
@@ -344,6 +344,10 @@ def test_depth_sfm_ground_takes_the_mean_of_the_depths_and_the_sfm_points_tilt()
     assert g["normal_from"] == "depth_sfm" and g["sfm_ground_points"] == 60 and abs(g["turned_deg"] - 4.0) < 0.3
     np.testing.assert_allclose(d[0], plane_depth(n, o, K, c2w, h, w), rtol=1e-6)
     np.testing.assert_allclose(n_w[0], np.broadcast_to(n, (h, w, 3)), atol=1e-12)
+    for tol in (None, 0.01):  # weight 1: the SfM points' plane alone, by trimmed least squares or RANSAC
+        _, _, (n_s, _), _ = snap_to_ground_plane(*args, normal_from="depth_sfm", sfm=(pts, obs), sfm_tol_rel=tol,
+                                                 sfm_weight=1.0)
+        assert math.degrees(math.acos(min(1.0, n_s @ n_sfm))) < 0.3
     steep = pts.copy()
     steep[:, 2] += 0.8 * (steep[:, 0] - steep[:, 0].mean())  # points on a 39-deg slope: not ground
     for sfm in (None, (pts, [(uv[: MIN_SFM_GROUND_POINTS - 1], np.arange(MIN_SFM_GROUND_POINTS - 1))]),
@@ -351,3 +355,37 @@ def test_depth_sfm_ground_takes_the_mean_of_the_depths_and_the_sfm_points_tilt()
         _, _, (n_only, _), info = snap_to_ground_plane(*args, normal_from="depth_sfm", sfm=sfm)
         assert math.degrees(math.acos(min(1.0, n_only @ n_depth))) < 0.5 and info["ground_plane"]["turned_deg"] == 0
     assert info["ground_plane"]["sfm_plane_tilt_deg"] > 25.0
+
+
+def test_sfm_ground_plane_by_ransac_survives_the_mismatches_of_a_repeated_texture():
+    """SfM points seen on the ground: 60 % on a plane 3 deg off +Z, 40 % triangulated off it (mismatched
+    features on a repeated texture land anywhere along their rays). Trimmed least squares keeps a tilt of
+    several degrees; ``tol_rel`` (RANSAC) finds the plane. RANSAC needs the camera centres and finds nothing
+    without enough points."""
+    import math
+
+    from lightcrafter.recon.default import MIN_SFM_GROUND_POINTS, sfm_ground_normal
+
+    rng = np.random.default_rng(3)
+    tilt = math.radians(3.0)
+    n_true = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
+    xy = rng.uniform(-2.0, 2.0, (300, 2))
+    z = -(n_true[0] * xy[:, 0]) / n_true[2]  # n . x = 0
+    pts = np.column_stack([xy, z])
+    bad = rng.random(300) < 0.4
+    cams = np.array([[0.0, -4.0, 2.0], [0.5, -4.0, 2.0]])
+    toward = pts[bad] - cams[0]  # mismatches slide along the camera ray
+    pts[bad] = cams[0] + toward * rng.uniform(0.6, 1.4, (int(bad.sum()), 1))
+    on = [np.ones((4, 4), bool)]
+    obs = [(np.zeros((300, 2)), np.arange(300))]
+
+    def err(n):
+        return math.degrees(math.acos(min(1.0, abs(float(n @ n_true)))))
+
+    n_lsq, count = sfm_ground_normal(pts, obs, on)
+    n_ransac, _ = sfm_ground_normal(pts, obs, on, tol_rel=0.01, cameras=cams, max_tilt_deg=25.0)
+    assert count == 300 and err(n_lsq) > 2.0 and err(n_ransac) < 0.5 and n_ransac[2] > 0
+    with pytest.raises(ValueError, match="camera centres"):
+        sfm_ground_normal(pts, obs, on, tol_rel=0.01)
+    few = [(np.zeros((MIN_SFM_GROUND_POINTS - 1, 2)), np.arange(MIN_SFM_GROUND_POINTS - 1))]
+    assert sfm_ground_normal(pts, few, on, tol_rel=0.01, cameras=cams) is None

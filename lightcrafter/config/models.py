@@ -354,6 +354,14 @@ class Recon(Section):
         "from the estimator's normals of its pixels (predicted), from the mean of the depth's and the SfM points' "
         "on its pixels (depth_sfm), or predicted for a static camera and depth_sfm for a moving one (auto: a "
         "static camera has no SfM points)")
+    ground_plane_sfm_tol_rel: Optional[float] = Field(
+        None, gt=0, lt=1, description="default backend, ground_plane_normal depth_sfm: how the SfM points' plane is "
+        "fitted: null = least squares trimmed of the 20 % largest residuals three times; a fraction = RANSAC, a "
+        "point an inlier within this fraction of its distance from the cameras' centroid "
+        "(lightcrafter.recon.default.sfm_ground_normal)")
+    ground_plane_sfm_weight: float = Field(
+        0.5, ge=0, le=1, description="default backend, ground_plane_normal depth_sfm: the plane's normal is the "
+        "normalised (1 - w) x the depth's + w x the SfM points' (0.5: their mean; 1: the SfM points' plane alone)")
     sky_beyond_ground: NonNegativeFloat = Field(0.0, description="default backend, with ground_plane: surface "
                                                 "pixels off the plane farther than this multiple of the "
                                                 "frame's farthest ground pixel become background (the estimator's "

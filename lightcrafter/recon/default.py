@@ -60,6 +60,10 @@ class DefaultSettings:
     ``ground_plane_max_tilt_deg``; ground_plane_normal: depth | predicted | depth_sfm | auto, the plane's
     orientation from the depth, the predicted normals of its pixels, or the mean of the depth's and of the SfM
     points seen on its pixels; auto = predicted for a static camera, depth_sfm for a moving one);
+    ground_plane_sfm_tol_rel: how the SfM points' plane is fitted (null: least squares trimmed of the 20 %
+    largest residuals three times; a number: RANSAC, a point an inlier within this fraction of its distance
+    from the cameras' centroid, :func:`sfm_ground_normal`); ground_plane_sfm_weight: depth_sfm's normal is
+    the normalised (1 - w) n_depth + w n_sfm (0.5: their mean; 1: the SfM points' plane alone);
     sky_beyond_ground: with the plane, surface pixels off it farther than this multiple of the frame's
     farthest ground pixel become background
     (:func:`cut_sky_beyond_ground`; 0 = off); albedo_detail_px: the input's own texture on the estimator's
@@ -78,6 +82,8 @@ class DefaultSettings:
     ground_plane_tol_rel: float = 0.05
     ground_plane_max_tilt_deg: float = 25.0
     ground_plane_normal: str = "depth"
+    ground_plane_sfm_tol_rel: float | None = None
+    ground_plane_sfm_weight: float = 0.5
     sky_beyond_ground: float = 0.0
     albedo_detail_px: float = 0.0
     exposure_ev: float = 0.0
@@ -101,6 +107,11 @@ class DefaultSettings:
         if s.ground_plane_normal not in GROUND_NORMALS + ("auto",):
             raise ValueError(f"recon.ground_plane_normal={s.ground_plane_normal!r}: use one of "
                              f"{list(GROUND_NORMALS + ('auto',))}")
+        if s.ground_plane_sfm_tol_rel is not None and not 0.0 < s.ground_plane_sfm_tol_rel < 1.0:
+            raise ValueError(f"recon.ground_plane_sfm_tol_rel={s.ground_plane_sfm_tol_rel!r}: use null or a "
+                             "fraction in (0, 1)")
+        if not 0.0 <= s.ground_plane_sfm_weight <= 1.0:
+            raise ValueError(f"recon.ground_plane_sfm_weight={s.ground_plane_sfm_weight!r}: use a weight in [0, 1]")
         if s.normals not in ("predicted", "depth"):
             raise ValueError(f"recon.normals={s.normals!r}: use 'predicted' or 'depth'")
         from lightcrafter.config import validate_section
@@ -386,12 +397,17 @@ MIN_SFM_GROUND_POINTS = 20  # depth_sfm keeps the depth's plane when fewer SfM p
 
 
 def sfm_ground_normal(points: np.ndarray, observations: list[tuple[np.ndarray, np.ndarray]], on: list[np.ndarray],
-                      min_points: int = MIN_SFM_GROUND_POINTS) -> tuple[np.ndarray, int] | None:
-    """Unit normal (facing +Z) of the least-squares plane through the SfM points (P, 3, world) that some frame
-    observes on a ground pixel (``on[i]`` (H, W) bool; observations: per frame (uv_px (M, 2), point index (M,)),
-    OpenCV pixel centres), three rounds keeping the 80 % smallest residuals; with the number of points. None
-    when fewer than ``min_points``. The SfM points are triangulated from several views, so their plane's tilt
-    does not share the errors of the per-frame depth fits."""
+                      min_points: int = MIN_SFM_GROUND_POINTS, tol_rel: float | None = None,
+                      cameras: np.ndarray | None = None,
+                      max_tilt_deg: float = 89.0) -> tuple[np.ndarray, int] | None:
+    """Unit normal (facing +Z) of the plane through the SfM points (P, 3, world) that some frame observes on a
+    ground pixel (``on[i]`` (H, W) bool; observations: per frame (uv_px (M, 2), point index (M,)), OpenCV pixel
+    centres); with the number of points. None when fewer than ``min_points`` (or RANSAC finds no plane). The SfM
+    points are triangulated from several views, so their plane's tilt does not share the errors of the
+    per-frame depth fits. ``tol_rel`` None: least squares, three rounds keeping the 80 % smallest residuals;
+    a number: RANSAC (:func:`fit_ground_plane`, a normal within ``max_tilt_deg`` of +Z), a point an inlier
+    within ``tol_rel`` of its distance from the centroid of the camera centres ``cameras`` (N, 3): mismatched
+    features on a repeated texture triangulate off the plane far more than 20 % of the time."""
     ids = set()
     for (uv, idx), mask in zip(observations, on):
         if len(idx) == 0:
@@ -401,6 +417,12 @@ def sfm_ground_normal(points: np.ndarray, observations: list[tuple[np.ndarray, n
     if len(ids) < min_points:
         return None
     P = np.asarray(points, np.float64)[sorted(ids)]
+    if tol_rel is not None:
+        if cameras is None:
+            raise ValueError("a RANSAC fit of the SfM ground plane needs the camera centres (cameras=)")
+        dist = np.linalg.norm(P - np.asarray(cameras, np.float64).mean(0), axis=1)
+        fit = fit_ground_plane(P, dist, tol_rel, max_tilt_deg)
+        return None if fit is None else (fit[0], len(P))
     keep = np.ones(len(P), bool)
     for _ in range(3):
         c0 = P[keep].mean(0)
@@ -412,7 +434,8 @@ def sfm_ground_normal(points: np.ndarray, observations: list[tuple[np.ndarray, n
 
 def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.ndarray, K: np.ndarray,
                          c2w: np.ndarray, tol_rel: float, max_tilt_deg: float, min_support: float = 0.25,
-                         max_points: int = 20000, normal_from: str = "depth", sfm=None):
+                         max_points: int = 20000, normal_from: str = "depth", sfm=None,
+                         sfm_tol_rel: float | None = None, sfm_weight: float = 0.5):
     """The dominant supporting plane of a Z-up clip, from the depth maps of every frame (metres of the
     clip's units): pixels whose points lie within ``tol_rel`` of the plane (relative to their depth) and whose
     normals are within ``max_tilt_deg`` of the plane's take the plane's depth and normal exactly (a
@@ -422,12 +445,14 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     itself; ``predicted`` keeps its inliers (which pixels are ground) but turns the plane to the mean of their
     per-pixel normals ``n_world`` (through their median offset): where the depth's tilt is the estimator's
     guess alone (a static camera: no SfM points to fit it to), its normals may tilt the ground better;
-    ``depth_sfm`` keeps the inliers too and turns the plane to the mean of the RANSAC normal and the normal of
-    the SfM points seen on them (:func:`sfm_ground_normal`; ``sfm`` = (points (P, 3) in the given world,
-    per-frame observations); a points' plane beyond ``max_tilt_deg`` of +Z is not ground and is ignored,
-    info ``sfm_plane_tilt_deg``), two estimates whose errors differ: on the default run's 6 moving-camera train
-    clips the ground's tilt against the truth was 5.2 deg (mean) from the depth, 7.3 from the SfM points and
-    2.7 from their mean. Without ``sfm`` or enough points it is ``depth``.
+    ``depth_sfm`` keeps the inliers too and turns the plane to the weighted mean (``sfm_weight`` w:
+    (1 - w) n_depth + w n_sfm, normalised) of the RANSAC normal and the normal of the SfM points seen on them
+    (:func:`sfm_ground_normal`, fitted by least squares or, with ``sfm_tol_rel``, by RANSAC; ``sfm`` = (points
+    (P, 3) in the given world, per-frame observations); a points' plane beyond ``max_tilt_deg`` of +Z is not
+    ground and is ignored, info ``sfm_plane_tilt_deg``). On the 6 moving-camera train clips of the 6-scene
+    default the ground's tilt against the truth was 5.2 deg (mean) from the depth, 7.3 from the SfM points' least
+    squares and 2.7 from their mean; on those of the 8-scene default (README) 5.1 deg from that mean and 3.3 from
+    the SfM points' RANSAC plane alone. Without ``sfm`` or enough points it is ``depth``.
     Returns (depth, n_world, plane (n, o) or None, info) with the plane n . x = o in the given world."""
     from lightcrafter.proxy.geometry import unproject
 
@@ -460,12 +485,14 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
         m = sum(n_world[i][on].sum(0) for i, (on, _) in enumerate(ons))
         n_new = m / max(np.linalg.norm(m), 1e-12)
     elif normal_from == "depth_sfm" and sfm is not None:
-        got = sfm_ground_normal(sfm[0], sfm[1], [on for on, _ in ons])
+        got = sfm_ground_normal(sfm[0], sfm[1], [on for on, _ in ons], tol_rel=sfm_tol_rel, cameras=c2w[:, :3, 3],
+                                max_tilt_deg=max_tilt_deg)
         if got is not None:
             n_s, sfm_points = got
             sfm_tilt = round(float(np.degrees(np.arccos(np.clip(n_s[2], -1.0, 1.0)))), 3)
             if n_s[2] >= cos_max:  # the bound the depth's plane has; points off any ground (a face) turn it far
-                n_new = (n + n_s) / np.linalg.norm(n + n_s)
+                m = (1.0 - sfm_weight) * n + sfm_weight * n_s
+                n_new = m / np.linalg.norm(m)
     if n_new is not None:
         inl = np.concatenate([unproject(np.where(on, depth[i], np.inf), K[i], c2w[i])[on]
                               for i, (on, _) in enumerate(ons)])
@@ -535,6 +562,8 @@ def config_settings(cfg: dict) -> dict:
         "ground_plane_tol_rel": r["ground_plane_tol_rel"],
         "ground_plane_max_tilt_deg": r["ground_plane_max_tilt_deg"],
         "ground_plane_normal": r["ground_plane_normal"],
+        "ground_plane_sfm_tol_rel": r["ground_plane_sfm_tol_rel"],
+        "ground_plane_sfm_weight": r["ground_plane_sfm_weight"],
         "sky_beyond_ground": r["sky_beyond_ground"],
         "albedo_detail_px": r["albedo_detail_px"],
         "sfm": r["sfm"],
@@ -607,7 +636,8 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
         sfm = None if track.static else (track.points @ Q.T, track.observations)  # in the Z-up world of c2w
         depth, n_world, plane, plane_info = snap_to_ground_plane(
             depth, n_world, mask, track.K, c2w, settings.ground_plane_tol_rel, settings.ground_plane_max_tilt_deg,
-            normal_from=normal_from, sfm=sfm)
+            normal_from=normal_from, sfm=sfm, sfm_tol_rel=settings.ground_plane_sfm_tol_rel,
+            sfm_weight=settings.ground_plane_sfm_weight)
         if plane is not None and settings.sky_beyond_ground:
             mask, plane_info["sky_pixels_cut"] = cut_sky_beyond_ground(
                 depth, n_world, mask, plane, track.K, c2w, settings.ground_plane_tol_rel,
