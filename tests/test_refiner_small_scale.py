@@ -383,11 +383,9 @@ def test_block_ratio_measures_an_added_grid_against_the_proxy():
     assert block_ratio(torch.zeros_like(proxy), torch.zeros_like(proxy)) == 1.0  # flat: no answer, counts as 1
 
 
-def test_selection_refuses_candidates_that_add_a_block_grid(tmp_path, monkeypatch):
-    """select.max_block_ratio: a candidate whose validation clips carry more block grid than allowed is not
-    chosen even with the best score; when every candidate does, the least blocky one is."""
-    from lightcrafter.refiner import fit as fitmod
-
+def _tag_outputs_with_their_residual_scale(fitmod, monkeypatch):
+    """Selection's refined clips carry the residual scale they were made with (``out.residual``), so a test can
+    fake a metric per kind of candidate."""
     real_refine_fn = fitmod.refine_fn
 
     def tagged(model, cfg, strength, guidance_scale, num_steps=None, residual_scale=None):
@@ -400,6 +398,14 @@ def test_selection_refuses_candidates_that_add_a_block_grid(tmp_path, monkeypatc
         return run
 
     monkeypatch.setattr(fitmod, "refine_fn", tagged)
+
+
+def test_selection_refuses_candidates_that_add_a_block_grid(tmp_path, monkeypatch):
+    """select.max_block_ratio: a candidate whose validation clips carry more block grid than allowed is not
+    chosen even with the best score; when every candidate does, the least blocky one is."""
+    from lightcrafter.refiner import fit as fitmod
+
+    _tag_outputs_with_their_residual_scale(fitmod, monkeypatch)
     monkeypatch.setattr(fitmod, "block_ratio", lambda out, proxy: 2.0 if out.residual else 1.05)
     pairs = _toy_manifest(tmp_path, ["s0", "s1"])
     base = {**SMALL, "train": {"max_steps": 2, "grad_accum": 1}, "infer": {"num_steps": 4},
@@ -435,18 +441,7 @@ def test_selection_refuses_candidates_less_consistent_over_time_than_the_proxy(t
     alone is scored once per step (it ignores strength and guidance)."""
     from lightcrafter.refiner import fit as fitmod
 
-    real_refine_fn = fitmod.refine_fn
-
-    def tagged(model, cfg, strength, guidance_scale, num_steps=None, residual_scale=None):
-        fn = real_refine_fn(model, cfg, strength, guidance_scale, num_steps, residual_scale)
-
-        def run(item):
-            out = fn(item)
-            out.residual = residual_scale
-            return out
-        return run
-
-    monkeypatch.setattr(fitmod, "refine_fn", tagged)
+    _tag_outputs_with_their_residual_scale(fitmod, monkeypatch)
     monkeypatch.setattr(fitmod, "warp_ssim_ratio", lambda out, item, cache: 0.97 if out.residual else 0.995)
     pairs = _toy_manifest(tmp_path, ["s0", "s1"])
     base = {**SMALL, "train": {"max_steps": 2, "grad_accum": 1}, "infer": {"num_steps": 4},
