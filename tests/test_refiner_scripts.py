@@ -49,8 +49,8 @@ def test_train_infer_evaluate(tmp_path):
          "--threads", "1", cwd=tmp_path)
     assert (tmp_path / "m/model.pt").is_file() and (tmp_path / "m/train.log").is_file()
     sel = json.loads((tmp_path / "m/selection.json").read_text())
-    # candidate steps x strengths x guidance scales x residual scales (tiny preset: 0 and 1)
-    assert len(sel["selection"]["table"]) == 2 * 2 * 1 * 2
+    # candidate steps x (strengths x guidance scales with the transformer, + the anchor alone once: it ignores both)
+    assert len(sel["selection"]["table"]) == 2 * (2 * 1 + 1)
     assert {r["residual_scale"] for r in sel["selection"]["table"]} == {0.0, 1.0}
     assert sel["carve"]["val_groups"] in (["a"], ["b"]) and "p3" not in sel["fit_pairs"] + sel["val_pairs"]
     chosen = sel["selection"]["chosen"]
