@@ -101,7 +101,7 @@ def warp_ssim_ratio(video, item: dict, cache: dict) -> float:
     key = item["pair_id"]
     if key not in cache:
         target = to_display_frames(item["target"])
-        if len(target) < 2 or no_flow_reason(target):
+        if no_flow_reason(target):  # one frame, or frames too small for DIS
             cache[key] = None
         else:
             flows = compute_flows(target)
@@ -240,7 +240,8 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
                          f", block grid x{sc['block_ratio']:.2f} of the proxy's", "" if min_warp is None else
                          f", Warp-SSIM x{sc['warp_ssim_ratio']:.3f} of the proxy's")
         metric = sel["metric"]
-        pool = [r for r in table if r.get("admissible", True)]
+        within = [r for r in table if r.get("admissible", True)]
+        pool = within
         if not pool:
             pool = _least_violating(table, max_block, min_warp)
             log.info("no candidate is within select.max_block_ratio %s and select.min_warp_ssim_ratio %s; the least "
@@ -259,7 +260,7 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
         proxy = score_method(lambda item: item["proxy"], val_ds)
         summary["selection"] = {"chosen": chosen, "table": table, "val_proxy": {k: proxy[k] for k in ("psnr_db", "ssim")},
                                 "num_val_pairs": len(val_ds), "note": carve["note"], "candidates": len(table),
-                                "admissible_candidates": sum(bool(r.get("admissible", True)) for r in table)}
+                                "admissible_candidates": len(within)}
         log.info("chosen on validation: %s (proxy alone %.3f dB)", chosen, proxy["psnr_db"])
     else:
         summary["selection"] = {"chosen": None, "note": carve["note"] if float(sel["val_scenes"]) > 0
