@@ -163,8 +163,9 @@ def rotation_grid(dirs: np.ndarray, yaw: float, pitch: float, width: int, height
     ry = np.array([[cp, 0.0, sp_], [0.0, 1.0, 0.0], [-sp_, 0.0, cp]])
     drz = np.array([[-sy, -cy, 0.0], [cy, -sy, 0.0], [0.0, 0.0, 0.0]])
     dry = np.array([[-sp_, 0.0, cp], [0.0, 0.0, 0.0], [-cp, 0.0, -sp_]])
-    src = dirs @ (ry @ rz)  # row-vector form of R^T d
-    x, y, z = src[:, 0], src[:, 1], src[:, 2]
+    # row-vector form of R^T d, one contiguous row per component: numpy's arctan2 of a strided and a
+    # contiguous operand picks its SIMD or scalar loop from run to run (1-ulp differences that Adam grows)
+    x, y, z = np.ascontiguousarray((dirs @ (ry @ rz)).T)
     rho2 = x * x + y * y
     rho = np.sqrt(rho2)
     u = np.mod((math.pi - np.arctan2(y, x)) / (2 * math.pi), 1.0)
