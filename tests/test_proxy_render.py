@@ -283,3 +283,45 @@ def test_device_benchmark_interleaves_the_variants_it_can_run_and_names_the_rest
                                  "--out", str(tmp_path / "d.json")], capture_output=True, text=True, cwd=root, timeout=600)
     assert r.returncode != 0 and "pass the --width/--height it was saved with" in r.stderr.splitlines()[-1]
     assert "ready" not in r.stdout
+
+
+def test_shadow_mesh_cut_keeps_a_smooth_silhouette_from_shadowing_the_ground_behind():
+    """A reconstruction's depth and normals are smooth across an object's silhouette. With the camera quads' loose
+    cut, the frame's shadow mesh keeps a sheet from the sphere's top to the ground behind it, which darkens that
+    ground under a bright sky. ``visibility_mesh.rel_threshold`` cuts the shadow mesh alone: the ground is lit as
+    with the true depth, and the camera's own quads (shading without shadows) do not change."""
+    from dataclasses import replace
+
+    from scipy.ndimage import gaussian_filter
+
+    from lightcrafter.proxy.visibility import VisibilitySettings
+
+    w, h = 64, 48
+    K = syn.intrinsics(w, h, 0.9)
+    c2w = syn.look_at([3.0, -3.0, 1.2], [0, 0, 0.5])
+    b = syn.raycast_buffers(K, c2w, w, h, [syn.Sphere((0, 0, 0.6), 0.6)], syn.Ground((0.5, 0.5, 0.5), 0.9, 0.0, 20.0))
+    n = np.stack([gaussian_filter(b.normal[..., c], 2.0) for c in range(3)], -1)
+    smooth = replace(b, depth=np.exp(gaussian_filter(np.log(np.minimum(b.depth, 60.0)), 2.0)).astype(np.float32),
+                     normal=(n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)).astype(np.float32))
+    env = np.full((16, 32, 3), 0.05, np.float32)
+    env[:8] = 1.0  # a bright sky over a dark floor
+
+    def render(buf, visibility, cut):
+        img, _ = render_clip(Lighting(env=env), [FrameView(buf, K, c2w, "x")], spp=64, visibility=visibility,
+                             visibility_mesh=VisibilitySettings(rel_threshold=cut))
+        return img[0].mean(-1)
+
+    truth = render(b, "frame", 0.05)
+    ground = b.normal[..., 2] > 0.99
+    false_shadow = {cut: int(((render(smooth, "frame", cut) < 0.8 * truth) & ground).sum()) for cut in (0.05, 0.02)}
+    assert false_shadow[0.05] >= 5 and false_shadow[0.02] == 0, false_shadow
+    np.testing.assert_array_equal(render(smooth, "none", 0.05), render(smooth, "none", 0.02))
+
+
+def test_shadow_mesh_cut_comes_from_the_proxy_config():
+    from lightcrafter.proxy import render_settings
+
+    s = render_settings({"rel_threshold": 0.05, "visibility_rel_threshold": 0.02})
+    assert (s.rel_threshold, s.visibility_mesh.rel_threshold) == (0.05, 0.02)
+    s = render_settings({"rel_threshold": 0.04})  # unset: the camera quads' cut
+    assert s.visibility_mesh.rel_threshold == 0.04

@@ -174,6 +174,10 @@ class Proxy(Section):
         "per frame when objects move; aggregate, frame, primary (the frame's own mesh), none (no shadows)")
     rel_threshold: PositiveFloat = Field(0.05, description="relative depth jump above which a triangle between "
                                          "neighbouring pixels is cut")
+    visibility_rel_threshold: Optional[PositiveFloat] = Field(
+        None, description="the same cut for the shadow mesh (aggregate or frame) alone; null = rel_threshold. A "
+        "reconstruction's depth is smooth across an object's silhouette, so a loose cut keeps a sheet from the "
+        "object's top to the ground behind it, which shadows the ground")
     border_px: NonNegativeInt = Field(0, description="image border masked from the per-frame mesh (pixels)")
     bilateral_sigma_px: NonNegativeFloat = Field(0.0, description="depth bilateral filter sigma in pixels (0 = off)")
     visibility_max_faces: NonNegativeInt = Field(50000, description="decimation target of the clip's shadow mesh "

@@ -49,7 +49,8 @@ class RenderSettings:
     (relative depth); border_px: image border masked from the per-frame mesh; bilateral_sigma_px:
     optional depth smoothing (0 = off); shadow_offset_px: shadow-ray origin offset in pixel
     footprints; visibility: 'aggregate' (clip mesh; 'auto' is resolved by clip.resolve_visibility
-    and means 'aggregate' here), 'frame' (this frame's pixel-centre mesh),
+    and means 'aggregate' here), 'frame' (this frame's pixel-centre mesh; both cut at
+    ``visibility_mesh.rel_threshold``, the camera's quads at ``rel_threshold``),
     'primary' (the very quads seen by the camera, as a mesh-for-mesh comparison with Cycles) or 'none';
     show_background: missed camera rays see the environment; max_lanes: wavefront size cap (lanes
     = pixels x samples per pass); sampler: Mitsuba sampler plugin: 'multijitter' (correlated
@@ -233,7 +234,7 @@ class ProxyRenderer:
         }
         grid = None
         if s.visibility == "frame":
-            g = pixel_grid_mesh(depth, valid, view.K, view.c2w, b.normal, s.rel_threshold, 0)
+            g = pixel_grid_mesh(depth, valid, view.K, view.c2w, b.normal, s.visibility_mesh.rel_threshold, 0)
             grid = (g.vertices, g.faces)
         elif s.visibility == "primary":
             grid = (pm.vertices, pm.faces)
