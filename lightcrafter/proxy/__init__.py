@@ -22,9 +22,9 @@ def render_settings(proxy: dict | None = None, **overrides):
     from lightcrafter.proxy.visibility import VisibilitySettings
 
     p = validate_section(Proxy, proxy, "proxy")
+    shadow_cut = p.visibility_rel_threshold or p.rel_threshold  # the shadow meshes' cut (null: the camera quads')
     s = RenderSettings(spp=p.spp, seed=p.seed, rel_threshold=p.rel_threshold, border_px=p.border_px,
                        bilateral_sigma_px=p.bilateral_sigma_px, visibility=p.visibility, sampler=p.sampler,
                        denoiser=p.denoiser,
-                       visibility_mesh=VisibilitySettings(
-                           rel_threshold=p.visibility_rel_threshold or p.rel_threshold, max_faces=p.visibility_max_faces))
+                       visibility_mesh=VisibilitySettings(rel_threshold=shadow_cut, max_faces=p.visibility_max_faces))
     return replace(s, **overrides) if overrides else s
