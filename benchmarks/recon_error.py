@@ -112,13 +112,16 @@ def main() -> int:
     summary = io.read_json(L.summary("reconstruction"))
     points = []
     w = cfg["recon"]["estimator"]["weights"]
-    from lightcrafter.recon.weights import SHIPPED_PROVENANCE
+    from lightcrafter.recon.weights import SHIPPED_PROVENANCE, member_records
 
-    curve = io.read_json(L.estimator_curve()) if w == "train" else \
-        {"points": io.read_json(SHIPPED_PROVENANCE)["curve"]} if w == "shipped" else {"points": []}
-    for p in curve["points"]:
-        if p["series"] in ("normal_deg", "depth_abs_rel"):
-            points.append({**p, "series": f"estimator_{p['series']}"})
+    # the estimator's training curves: this run's, or each shipped member's (an ensemble's second member on
+    # series ending in _member1, ...)
+    curves = [io.read_json(L.estimator_curve())["points"]] if w == "train" else \
+        [r["curve"] for r in member_records(io.read_json(SHIPPED_PROVENANCE))] if w == "shipped" else []
+    for i, curve in enumerate(curves):
+        for p in curve:
+            if p["series"] in ("normal_deg", "depth_abs_rel"):
+                points.append({**p, "series": f"estimator_{p['series']}" + (f"_member{i}" if i else "")})
     clips = {"validation": [], "test": []}  # Phi's settings are chosen on train-split clips, reported on test
     for cid, e in summary["per_clip"].items():
         split = {"train": "validation", "test": "test"}.get(e.get("split"))

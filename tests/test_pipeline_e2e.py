@@ -156,6 +156,43 @@ def test_estimator_weights_benchmark_scores_each_weights_file_on_train_and_test_
         bench.main(["--results", str(e2e_run / "results"), "--weights", "old=git:no-such-rev", "--out", str(out)])
 
 
+def test_ship_estimator_ships_a_run_then_adds_it_as_an_ensemble_member(e2e_run, tmp_path, monkeypatch):
+    """scripts/ship_estimator.py on the run's estimator (into a scratch weights folder): it ships one network with
+    its provenance and check set; --add-member makes the file an ensemble of two whose provenance lists both
+    records and whose recorded errors the loaded ensemble reproduces; --add-member with nothing shipped is one
+    line."""
+    import importlib.util
+
+    import lightcrafter.recon.weights as W
+    from lightcrafter.io import DataError
+    from lightcrafter.recon import estimator as est
+
+    monkeypatch.setattr(W, "SHIPPED_WEIGHTS", tmp_path / "w" / "gbuffer_estimator.pt")
+    monkeypatch.setattr(W, "SHIPPED_PROVENANCE", tmp_path / "w" / "gbuffer_estimator.json")
+    monkeypatch.syspath_prepend(str(REPO / "scripts"))
+    spec = importlib.util.spec_from_file_location("ship_estimator", REPO / "scripts" / "ship_estimator.py")
+    ship = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ship)
+    args = ["--results", str(e2e_run / "results"), "--config", str(REPO / "config" / "ci.yaml"), "--check-frames", "2"]
+    with pytest.raises(DataError, match="no shipped weights to add a member to"):
+        ship.main(args + ["--add-member"])
+    assert ship.main(args) == 0
+    one = json.loads(W.SHIPPED_PROVENANCE.read_text())
+    assert "members" not in one and one["config_file"] == "ci.yaml" and len(one["data"]["check_frames"]) == 2
+    assert isinstance(est.load(W.SHIPPED_WEIGHTS), est.GBufferNet)
+    assert ship.main(args + ["--add-member"]) == 0
+    two = json.loads(W.SHIPPED_PROVENANCE.read_text())
+    assert len(two["members"]) == 2 and two["members"][0]["commit"] == one["commit"]
+    assert all("sha256" not in r and r["curve"] for r in two["members"])
+    ens = est.load(W.SHIPPED_WEIGHTS)
+    assert isinstance(ens, est.EstimatorEnsemble) and len(ens.members) == 2
+    assert two["parameters"] == 2 * one["parameters"]
+    errors = est.check_set_errors(ens, W.check_set_path())
+    for k, v in two["check_set_errors"].items():  # two copies of one network: its own errors, reproduced
+        assert errors[k] == pytest.approx(v, rel=1e-4, abs=1e-5) and v == pytest.approx(one["check_set_errors"][k],
+                                                                                         rel=1e-4, abs=1e-5), k
+
+
 def test_envfit_response_benchmark_scores_real_clips_and_a_synthetic_control(e2e_run, tmp_path):
     """benchmarks/envfit_response.py on the run: each real clip and each train split's synthetic clip get the
     pseudo-input's PSNR without and with the fitted camera curve; the curve never makes the fitted frames worse."""

@@ -13,7 +13,7 @@ import torch
 
 from lightcrafter import io
 from lightcrafter.recon import estimator as est
-from lightcrafter.recon.weights import SHIPPED_PROVENANCE, SHIPPED_WEIGHTS, check_set_path, weights_path
+from lightcrafter.recon.weights import SHIPPED_PROVENANCE, SHIPPED_WEIGHTS, check_set_path, member_records, weights_path
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,19 +28,83 @@ def test_shipped_weights_reproduce_their_recorded_validation_errors():
     # are checked on the run's test clips (results/summary/reconstruction.json); here, on held-out frames,
     # the weights must be far better than an untrained network
     torch.manual_seed(0)
-    untrained = est.check_set_errors(est.GBufferNet(prov["estimator"]["widths"]).eval(), check_set_path())
+    widths = member_records(prov)[0]["estimator"]["widths"]
+    untrained = est.check_set_errors(est.GBufferNet(widths).eval(), check_set_path())
     assert errors["normal_deg"] < 0.5 * untrained["normal_deg"]
     assert errors["albedo_psnr_db"] > untrained["albedo_psnr_db"] + 3
 
 
-def test_provenance_names_the_commit_config_data_and_curve():
+def test_provenance_names_the_commit_config_data_and_curve_of_every_member():
     prov = io.read_json(SHIPPED_PROVENANCE)
-    assert len(prov["commit"]) == 40 and prov["config_file"] == "estimator.yaml"
-    assert prov["data"]["train_frames"] > 0 and prov["data"]["scenes"] > 1
-    steps = [p["setting"] for p in prov["curve"] if p["series"] == "normal_deg"]
-    secs = [p["seconds"] for p in prov["curve"] if p["series"] == "normal_deg"]
-    assert steps == sorted(steps) and secs == sorted(secs) and prov["selected_step"] in steps
-    assert prov["parameters"] == sum(p.numel() for p in est.load(SHIPPED_WEIGHTS).parameters())
+    shipped = est.load(SHIPPED_WEIGHTS)
+    records = member_records(prov)
+    members = shipped.members if isinstance(shipped, est.EstimatorEnsemble) else [shipped]
+    assert len(records) == len(members)
+    for rec, net in zip(records, members):
+        assert len(rec["commit"]) == 40 and rec["config_file"].startswith("estimator")
+        assert (REPO / "config" / rec["config_file"]).is_file()
+        assert rec["data"]["train_frames"] > 0 and rec["data"]["scenes"] > 1
+        steps = [p["setting"] for p in rec["curve"] if p["series"] == "normal_deg"]
+        secs = [p["seconds"] for p in rec["curve"] if p["series"] == "normal_deg"]
+        assert steps == sorted(steps) and secs == sorted(secs) and rec["selected_step"] in steps
+        assert rec["parameters"] == sum(p.numel() for p in net.parameters())
+        # each member alone reproduces its own recorded errors on the check set
+        errors = est.check_set_errors(net.eval(), check_set_path())
+        for k, v in rec["check_set_errors"].items():
+            assert errors[k] == pytest.approx(v, rel=1e-3, abs=1e-4), k
+    assert prov["parameters"] == sum(p.numel() for p in shipped.parameters())
+    if len(records) > 1:  # members differ in their seed, not in their set or schedule
+        seeds = [r["estimator"]["seed"] for r in records]
+        assert len(set(seeds)) == len(seeds)
+        assert {r["estimator"]["steps"] for r in records} == {records[0]["estimator"]["steps"]}
+
+
+def _member_file(path, seed: int, widths=(8, 16)) -> dict:
+    torch.manual_seed(seed)
+    net = est.GBufferNet(list(widths), "direct_colour")
+    cfg = est.EstimatorConfig.from_dict({"widths": list(widths), "albedo_head": "direct_colour", "seed": seed})
+    est.save(net, cfg, path)
+    return torch.load(path, map_location="cpu", weights_only=False)
+
+
+def test_an_ensemble_file_averages_its_members_predictions(tmp_path):
+    """lightcrafter.recon.estimator.EstimatorEnsemble through save_ensemble/load: depth is the members' geometric
+    mean, albedo, roughness, metallic their mean, normals the renormalised mean (unit length); two copies of one
+    network predict what it predicts."""
+    a, b = _member_file(tmp_path / "a.pt", 0), _member_file(tmp_path / "b.pt", 1)
+    est.save_ensemble([a, b], tmp_path / "ab.pt")
+    est.save_ensemble([a, a], tmp_path / "aa.pt")
+    ens = est.load(tmp_path / "ab.pt")
+    assert isinstance(ens, est.EstimatorEnsemble) and len(ens.members) == 2
+    frame = np.random.default_rng(0).random((16, 24, 3)).astype(np.float32)
+    pa, pb = est.predict(est.load(tmp_path / "a.pt"), frame), est.predict(est.load(tmp_path / "b.pt"), frame)
+    pab, paa = est.predict(ens, frame), est.predict(est.load(tmp_path / "aa.pt"), frame)
+    assert np.allclose(pab["depth"], np.sqrt(pa["depth"] * pb["depth"]), rtol=1e-4)
+    for k in ("albedo", "roughness", "metallic"):
+        assert np.allclose(pab[k], (pa[k] + pb[k]) / 2, atol=1e-6), k
+    assert np.allclose(np.linalg.norm(pab["normal_cam"], axis=-1), 1.0, atol=1e-5)
+    mean_n = pa["normal_cam"] + pb["normal_cam"]
+    assert np.allclose(pab["normal_cam"], mean_n / np.linalg.norm(mean_n, axis=-1, keepdims=True), atol=1e-5)
+    for k in pa:
+        assert np.allclose(paa[k], pa[k], atol=1e-5), k
+
+
+@pytest.mark.parametrize("case", ["no_members", "member_of_another_shape", "member_not_a_network"])
+def test_bad_ensemble_files_get_one_line_naming_the_file_and_the_member(tmp_path, case):
+    a = _member_file(tmp_path / "a.pt", 0)
+    p = tmp_path / "ens.pt"
+    if case == "no_members":
+        torch.save({"format": est.ENSEMBLE_FORMAT, "members": []}, p)
+    elif case == "member_of_another_shape":
+        est.save_ensemble([a, {**a, "config": {**a["config"], "widths": [4, 8, 16]}}], p)
+    else:
+        est.save_ensemble([a, {"weights": np.zeros(3)}], p)
+    with pytest.raises(io.DataError) as exc:
+        est.load(p)
+    msg = str(exc.value)
+    assert str(p) in msg and "\n" not in msg and "recon.estimator.weights" in msg
+    if case != "no_members":
+        assert "(member 1)" in msg
 
 
 def test_weights_key_resolves_train_shipped_and_paths(tmp_path):

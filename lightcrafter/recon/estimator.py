@@ -258,7 +258,7 @@ def buffer_errors(pred: dict[str, np.ndarray], gt: io.Buffers, c2w: np.ndarray |
 
 # ----------------------------------------------------------------------------- train / predict
 @torch.no_grad()
-def predict(model: GBufferNet, display_rgb: np.ndarray) -> dict[str, np.ndarray]:
+def predict(model: GBufferNet | EstimatorEnsemble, display_rgb: np.ndarray) -> dict[str, np.ndarray]:
     """Predictions for display frames (N,H,W,3) in [0,1] (or one frame (H,W,3); anything else is a
     ValueError); numpy arrays per key:
     depth (metres of the training scale), normal_cam (OpenCV camera axes), albedo, roughness, metallic, mask."""
@@ -285,7 +285,7 @@ def predict(model: GBufferNet, display_rgb: np.ndarray) -> dict[str, np.ndarray]
     return {k: v[0] for k, v in res.items()} if single else res
 
 
-def _validation_errors(model: GBufferNet, val: list[tuple[np.ndarray, io.Buffers, np.ndarray]]) -> dict[str, float]:
+def _validation_errors(model: GBufferNet | EstimatorEnsemble, val: list[tuple[np.ndarray, io.Buffers, np.ndarray]]) -> dict[str, float]:
     rows = []
     for rgb, b, c2w in val:
         p = predict(model, rgb)
@@ -295,7 +295,7 @@ def _validation_errors(model: GBufferNet, val: list[tuple[np.ndarray, io.Buffers
     return {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
 
 
-def check_set_errors(model: GBufferNet, path: str | Path) -> dict[str, float]:
+def check_set_errors(model: GBufferNet | EstimatorEnsemble, path: str | Path) -> dict[str, float]:
     """Mean buffer errors (:func:`buffer_errors`) of ``model`` on a check set written by
     scripts/ship_estimator.py (npz: rgb, c2w and ground-truth buffer arrays per frame)."""
     d = np.load(path)
@@ -372,14 +372,64 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
     return model, curve
 
 
+ENSEMBLE_FORMAT = "lightcrafter.estimator_ensemble/1"
+
+
+class EstimatorEnsemble(nn.Module):
+    """Several trained :class:`GBufferNet` members (e.g. the same set and schedule under other seeds) whose
+    predictions are averaged: log-depth (a geometric mean of depth), unit normals (mean, renormalised),
+    albedo, roughness and metallic, and the mask's logit. The shipped weights are one (``recon.estimator.weights:
+    shipped``; scripts/ship_estimator.py --add-member), saved by :func:`save_ensemble`; :func:`load` reads both
+    kinds of file, so every path that takes a weights file takes an ensemble."""
+
+    def __init__(self, members: list[GBufferNet]):
+        super().__init__()
+        if not members:
+            raise ValueError("an estimator ensemble needs at least one member")
+        self.members = nn.ModuleList(members)
+
+    @property
+    def stride(self) -> int:
+        return max(m.stride for m in self.members)
+
+    def forward(self, rgb: torch.Tensor, coords: torch.Tensor | None = None,
+                frame_chroma: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        outs = [m(rgb, coords, frame_chroma) for m in self.members]
+        mean = {k: torch.stack([o[k] for o in outs]).mean(0) for k in outs[0]}
+        mean["normal"] = F.normalize(mean["normal"], dim=1)
+        return mean
+
+
 def save(model: GBufferNet, cfg: EstimatorConfig, path: str | Path, extra: dict | None = None) -> None:
     with io.atomic_path(path) as tmp:
         torch.save({"state": model.state_dict(), "config": cfg.model_dump(), **(extra or {})}, tmp)
 
 
-def load(path: str | Path) -> GBufferNet:
-    """The estimator saved at ``path`` (:func:`save`); a missing, corrupt or mismatched file is a DataError
-    of one line naming the file and the fix."""
+def save_ensemble(members: list[dict], path: str | Path) -> None:
+    """Write an ensemble file from members as :func:`save` writes them (dicts with ``state`` and ``config``,
+    extra keys kept), in order."""
+    with io.atomic_path(path) as tmp:
+        torch.save({"format": ENSEMBLE_FORMAT, "members": list(members)}, tmp)
+
+
+def _member(st, path: Path, fix: str, where: str = "") -> GBufferNet:
+    if not isinstance(st, dict) or "state" not in st or not isinstance(st.get("config"), dict) \
+            or "widths" not in st["config"]:
+        raise io.DataError(f"{path}: not a G-buffer estimator file{where} (no 'state' and 'config' entries, as "
+                           f"lightcrafter.recon.estimator.save writes); {fix}")
+    model = GBufferNet(st["config"]["widths"], st["config"].get("albedo_head", "direct"))
+    try:
+        model.load_state_dict(st["state"])
+    except RuntimeError:
+        raise io.DataError(f"{path}: its weights{where} do not fit the network its config names (widths "
+                           f"{st['config']['widths']}: another network shape or an edited file); {fix}") from None
+    return model
+
+
+def load(path: str | Path) -> GBufferNet | EstimatorEnsemble:
+    """The estimator saved at ``path`` (:func:`save`, or an :class:`EstimatorEnsemble` saved by
+    :func:`save_ensemble`); a missing, corrupt or mismatched file is a DataError of one line naming the file and
+    the fix."""
     import pickle
     import zipfile
 
@@ -399,19 +449,16 @@ def load(path: str | Path) -> GBufferNet:
             TypeError, ModuleNotFoundError) as exc:
         why = str(exc).strip().splitlines()[0] if str(exc).strip() else "truncated or corrupt"
         raise io.DataError(f"{path}: unreadable estimator weights ({type(exc).__name__}: {why[:120]}); {fix}") from None
-    if not isinstance(st, dict) or "state" not in st or not isinstance(st.get("config"), dict) \
-            or "widths" not in st["config"]:
-        raise io.DataError(f"{path}: not a G-buffer estimator file (no 'state' and 'config' entries, as "
-                           f"lightcrafter.recon.estimator.save writes); {fix}")
-    model = GBufferNet(st["config"]["widths"], st["config"].get("albedo_head", "direct"))
-    try:
-        model.load_state_dict(st["state"])
-    except RuntimeError:
-        raise io.DataError(f"{path}: its weights do not fit the network its config names (widths "
-                           f"{st['config']['widths']}: another network shape or an edited file); {fix}") from None
+    if isinstance(st, dict) and "members" in st:
+        if not isinstance(st["members"], list) or not st["members"]:
+            raise io.DataError(f"{path}: an estimator ensemble file with no members; {fix}")
+        members = [_member(m, path, fix, f" (member {i})") for i, m in enumerate(st["members"])]
+        model, device = EstimatorEnsemble(members), st["members"][0]["config"].get("device", "cpu")
+    else:
+        model, device = _member(st, path, fix), (st.get("config") or {}).get("device", "cpu")
     from lightcrafter.devices import resolve_device
 
-    return model.to(resolve_device(st["config"].get("device", "cpu"), "recon.estimator.device")).eval()
+    return model.to(resolve_device(device, "recon.estimator.device")).eval()
 
 
 def curve_bench(curve: list[dict], cfg: EstimatorConfig, metric: str = "normal_deg") -> dict:

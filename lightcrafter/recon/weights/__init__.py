@@ -5,6 +5,10 @@ synthetic recon-only set of ``config/estimator.yaml`` (other seed, assets and sc
 config's test scenes) and copied here by ``scripts/ship_estimator.py``, which writes
 ``gbuffer_estimator.json`` beside it: commit, config, data counts, the validation curve (errors against
 seconds of training) and the validation errors the weights reproduce (tests/test_shipped_estimator.py).
+
+The file may hold several members (:class:`lightcrafter.recon.estimator.EstimatorEnsemble`: the same set and
+schedule under other seeds, ``config/estimator_seed*.yaml``; ``ship_estimator.py --add-member``), whose predictions
+Phi averages; the provenance then lists each member's record under ``members`` (:func:`member_records`).
 """
 
 from __future__ import annotations
@@ -29,3 +33,9 @@ def check_set_path() -> Path:
     """Held-out validation frames (display RGB + ground-truth buffers, float16) shipped beside the weights:
     the errors recorded in the provenance file are recomputed on them by the tests."""
     return SHIPPED_WEIGHTS.with_name("gbuffer_estimator_check.npz")
+
+
+def member_records(provenance: dict) -> list[dict]:
+    """Each shipped member's provenance record (commit, config, data, curve, ...): ``members`` of an ensemble's
+    provenance file, else the file itself (one network)."""
+    return list(provenance["members"]) if "members" in provenance else [provenance]
