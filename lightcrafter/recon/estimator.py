@@ -285,7 +285,8 @@ def predict(model: GBufferNet | EstimatorEnsemble, display_rgb: np.ndarray) -> d
     return {k: v[0] for k, v in res.items()} if single else res
 
 
-def _validation_errors(model: GBufferNet | EstimatorEnsemble, val: list[tuple[np.ndarray, io.Buffers, np.ndarray]]) -> dict[str, float]:
+def _validation_errors(model: GBufferNet | EstimatorEnsemble,
+                       val: list[tuple[np.ndarray, io.Buffers, np.ndarray]]) -> dict[str, float]:
     rows = []
     for rgb, b, c2w in val:
         p = predict(model, rgb)
