@@ -59,11 +59,10 @@ def carve_validation(records: list[dict], val_scenes: float, seed: int = 0) -> d
     bad = [r["pair_id"] for r in records if r.get("split") != "train"]
     if bad:
         raise ValueError(f"validation is carved from the train split only; got other splits for {bad[:3]}")
-    kinds: dict[str, list[str]] = {}
+    by_kind: dict[str, set[str]] = {}
     for r in records:
-        if pair_group(r) not in kinds.setdefault(pair_kind(r), []):
-            kinds[pair_kind(r)].append(pair_group(r))
-    kinds = {k: sorted(kinds[k]) for k in sorted(kinds, key=lambda k: (k != "synthetic", k))}
+        by_kind.setdefault(pair_kind(r), set()).add(pair_group(r))
+    kinds = {k: sorted(by_kind[k]) for k in sorted(by_kind, key=lambda k: (k != "synthetic", k))}
     all_groups = sorted(g for gs in kinds.values() for g in gs)
     counts = ", ".join(f"{len(g)} {KIND_NOUNS.get(k, k)}" for k, g in kinds.items())
     if any(len(g) >= 2 for g in kinds.values()):
