@@ -53,9 +53,9 @@ def _data_counts(a, st) -> dict:
             "validation_clip": f"{val_clip.parent.parent.name}/{val_clip.parent.name}"}
 
 
-def _write_check_set(a, st) -> list[int]:
-    """Write the check set (``a.check_frames`` frames of the run's validation clip) beside the weights; returns
-    the frame indices."""
+def _write_check_set(a, validation_clip: str) -> list[int]:
+    """Write the check set (``a.check_frames`` frames of the run's validation clip, "scene/trajectory") beside
+    the weights; returns the frame indices."""
     import numpy as np
 
     from lightcrafter import io
@@ -63,7 +63,7 @@ def _write_check_set(a, st) -> list[int]:
     from lightcrafter.recon import estimator as est
     from lightcrafter.recon.weights import SHIPPED_WEIGHTS, check_set_path
 
-    scene, traj = _data_counts(a, st)["validation_clip"].split("/")
+    scene, traj = validation_clip.split("/")
     spec_dir = a.results / "gt" / scene / traj
     views, _ = read_clip(spec_dir)
     spec = io.read_json(a.results / "scenes" / scene / "scene.json")
@@ -122,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     model = est.load(model_file)
     if not isinstance(model, est.GBufferNet):
         raise DataError(f"{model_file}: already an ensemble; ship one trained network at a time")
+    counts = _data_counts(a, st)
     if a.add_member:
         if not (SHIPPED_WEIGHTS.is_file() and SHIPPED_PROVENANCE.is_file() and check_set_path().is_file()):
             raise DataError(f"{SHIPPED_WEIGHTS}: no shipped weights to add a member to; ship one first (without "
@@ -130,10 +131,9 @@ def main(argv: list[str] | None = None) -> int:
         members = list(old["members"]) if "members" in old else [old]
         records = [{k: v for k, v in r.items() if k not in HEAD_KEYS}
                    for r in member_records(io.read_json(SHIPPED_PROVENANCE))]
-        counts = _data_counts(a, st)
     else:
         members, records = [], []
-        counts = {**_data_counts(a, st), "check_frames": _write_check_set(a, st)}
+        counts["check_frames"] = _write_check_set(a, counts["validation_clip"])
     record = _record(a, st, model, counts, curve_file, errors=est.check_set_errors(model, check_set_path()))
     members.append(st)
     records.append(record)
