@@ -152,9 +152,10 @@ def _selection_section(evals: dict) -> str:
     return ("<h3>Refiner settings chosen on validation scenes (never test)</h3><p class='note'>residual 1 = the "
             "full refiner; residual 0 = the learned anchor of the proxy alone (a colour map and a small kernel, "
             "refiner.model.anchor_space), chosen when the transformer's correction scored lower on validation or "
-            "every candidate with it was refused (admissible: candidates within refiner.select.max_block_ratio, the "
-            "block grid over the proxy's, and refiner.select.min_warp_ssim_ratio, the Warp-SSIM over the "
-            "proxy's).</p>"
+            "every candidate with it was refused; a residual in between adds the transformer's correction at that "
+            "weight (refiner.select.residual_scales). Admissible: candidates within refiner.select.max_block_ratio, "
+            "the block grid over the proxy's, and refiner.select.min_warp_ssim_ratio, the Warp-SSIM over the "
+            "proxy's.</p>"
             + _table(rows, ["variant", "step", "strength", "guidance", "residual", "val_refined_db", "val_proxy_db",
                             "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"]))
 
