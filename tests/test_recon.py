@@ -263,6 +263,35 @@ def test_direct_colour_head_tells_a_pink_ground_from_a_grey_one():
     assert err["direct_colour"] < 0.02, err
 
 
+def test_white_balance_augmentation_keeps_the_light_colour_out_of_the_albedo():
+    """A grey (0.4) and a pink (0.6, 0.35, 0.35) surface under a white light are the training set. Shown the grey
+    surface under a pink light (a frame that looks like the pink surface), the estimator trained without
+    recon.estimator.augment_wb_ev calls it pink; the one trained with it (each frame under a light of another
+    colour) has learnt that a frame's colour may be the light's, and its albedo moves toward grey."""
+    from lightcrafter.recon import estimator as est
+
+    h, w = 16, 24
+    surfaces = [np.float32([0.4, 0.4, 0.4]), np.float32([0.6, 0.35, 0.35])]
+    samples = []
+    for alb in surfaces:
+        a = np.broadcast_to(alb, (h, w, 3)).copy()
+        b = io.Buffers(depth=np.full((h, w), 4.0, np.float32),
+                       normal=np.broadcast_to(np.float32([0, 0, 1]), (h, w, 3)), albedo=a,
+                       roughness=np.full((h, w), 0.5, np.float32), metallic=np.zeros((h, w), np.float32),
+                       mask=np.ones((h, w), np.float32))
+        samples.append(est.sample_from(io.linear_to_display(a * np.float32(0.7)), b, np.eye(4)))
+    shown = io.linear_to_display(np.broadcast_to(surfaces[1] * np.float32(0.7), (h, w, 3)))
+    err = {}
+    for wb in (0.0, 1.0):
+        cfg = est.EstimatorConfig(widths=[8, 16], steps=150, batch=4, crop=None, lr=1e-2, eval_every=150,
+                                  keep_best=False, threads=1, albedo_head="direct_colour", augment_wb_ev=wb)
+        model, _ = est.train_estimator(samples, [], cfg, log=lambda m: None)
+        pred = est.predict(model, shown[None])["albedo"][0]
+        err[wb] = float(np.abs(pred - surfaces[0]).mean())  # against the grey surface the frame also could be
+    assert err[0.0] > 0.08, err  # pink: (0.2 + 0.05 + 0.05) / 3 = 0.1 from grey
+    assert err[1.0] < 0.8 * err[0.0], err  # seeds 0-2: 0.66-0.72 of it
+
+
 def test_shading_ratio_albedo_is_pulled_down_where_it_clips():
     """Where input / S exceeds 1 the albedo is 1 and its loss still has a gradient on S, so an over-bright
     estimate can fall below 1 again."""

@@ -266,6 +266,12 @@ class Estimator(Section):
                                          "scaled by 2^u EV, u uniform in [-augment_ev, augment_ev] (display values "
                                          "re-encoded; targets unchanged), so the estimator does not read brightness "
                                          "as albedo; 0 = off")
+    augment_wb_ev: NonNegativeFloat = Field(0.0, description="white-balance augmentation: each training frame's "
+                                            "linear radiance is scaled per channel by 2^(v_c - mean(v)), v_c uniform "
+                                            "in [-augment_wb_ev, augment_wb_ev] (a light of another colour; display "
+                                            "values re-encoded, the frame's mean colour taken after it; targets "
+                                            "unchanged), so the estimator does not read the light's colour as "
+                                            "albedo; 0 = off")
     albedo_head: Literal["direct", "direct_colour", "shading_ratio"] = Field(
         "direct", description="direct: albedo is a sigmoid of the network's features, which its group norms make blind "
         "to the frame's absolute colour and brightness; direct_colour: as direct, but the output head also sees the "

@@ -336,6 +336,10 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
         batch = _stack([train[i] for i in idx])
         h, w = batch.rgb.shape[-2:]
         coords = frame_coords(h, w).expand(len(idx), 2, h, w)
+        if cfg.augment_wb_ev > 0:  # white balance: the light's colour changes, the albedo target does not
+            v = (torch.rand(len(idx), 3, 1, 1, generator=gen) * 2 - 1) * cfg.augment_wb_ev
+            gain = torch.exp2(v - v.mean(dim=1, keepdim=True))
+            batch.rgb = ((batch.rgb.clamp_min(0) ** 2.2) * gain).clamp(0, 1) ** (1 / 2.2)
         chroma = log_chroma(batch.rgb)  # of the whole frames (the exposure scaling below changes it only by clipping)
         if cfg.crop:
             ch, cw = min(cfg.crop[0], h), min(cfg.crop[1], w)
