@@ -53,9 +53,9 @@ def test_provenance_names_the_commit_config_data_and_curve_of_every_member():
         for k, v in rec["check_set_errors"].items():
             assert errors[k] == pytest.approx(v, rel=1e-3, abs=1e-4), k
     assert prov["parameters"] == sum(p.numel() for p in shipped.parameters())
-    if len(records) > 1:  # members differ in their seed, not in their set or schedule
-        seeds = [r["estimator"]["seed"] for r in records]
-        assert len(set(seeds)) == len(seeds)
+    if len(records) > 1:  # members differ in their seed or training settings (no two alike), not in schedule
+        settings = [repr(sorted(r["estimator"].items())) for r in records]
+        assert len(set(settings)) == len(settings)
         assert {r["estimator"]["steps"] for r in records} == {records[0]["estimator"]["steps"]}
 
 
