@@ -311,6 +311,12 @@ def check_set_errors(model: GBufferNet | EstimatorEnsemble, path: str | Path) ->
     return _validation_errors(model, val)
 
 
+def _scale_linear(rgb: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
+    """Display-referred frames (sRGB decoded approximately as gamma 2.2) with their linear radiance scaled by
+    ``gain`` (broadcast: one per frame, or one per frame and channel), clipped to [0, 1] as a camera would."""
+    return ((rgb.clamp_min(0) ** 2.2) * gain).clamp(0, 1) ** (1 / 2.2)
+
+
 def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers, np.ndarray]], cfg: EstimatorConfig,
                     log=print) -> tuple[GBufferNet, list[dict]]:
     """Train from scratch; returns (model, curve) where curve lists validation errors against
@@ -338,8 +344,7 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
         coords = frame_coords(h, w).expand(len(idx), 2, h, w)
         if cfg.augment_wb_ev > 0:  # white balance: the light's colour changes, the albedo target does not
             v = (torch.rand(len(idx), 3, 1, 1, generator=gen) * 2 - 1) * cfg.augment_wb_ev
-            gain = torch.exp2(v - v.mean(dim=1, keepdim=True))
-            batch.rgb = ((batch.rgb.clamp_min(0) ** 2.2) * gain).clamp(0, 1) ** (1 / 2.2)
+            batch.rgb = _scale_linear(batch.rgb, torch.exp2(v - v.mean(dim=1, keepdim=True)))
         chroma = log_chroma(batch.rgb)  # of the whole frames (the exposure scaling below changes it only by clipping)
         if cfg.crop:
             ch, cw = min(cfg.crop[0], h), min(cfg.crop[1], w)
@@ -353,7 +358,7 @@ def train_estimator(train: list[Sample], val: list[tuple[np.ndarray, io.Buffers,
             coords = torch.flip(coords, dims=[-1]) * torch.tensor([-1.0, 1.0]).view(1, 2, 1, 1)
         if cfg.augment_ev > 0:  # exposure: scale linear radiance (sRGB decoded approximately) by 2^u
             u = (torch.rand(len(idx), 1, 1, 1, generator=gen) * 2 - 1) * cfg.augment_ev
-            batch.rgb = ((batch.rgb.clamp_min(0) ** 2.2) * torch.exp2(u)).clamp(0, 1) ** (1 / 2.2)
+            batch.rgb = _scale_linear(batch.rgb, torch.exp2(u))
         if dev.type != "cpu":  # all random draws above stay on the CPU generator
             batch = Sample(**{k: getattr(batch, k).to(dev) for k in Sample.__dataclass_fields__})
             coords, chroma = coords.to(dev), chroma.to(dev)
