@@ -235,6 +235,16 @@ def test_shading_ratio_albedo_keeps_the_inputs_colour_and_level():
         GBufferNet([8, 16], "ratio")
 
 
+def _flat_surface(albedo: np.ndarray, h: int = 16, w: int = 24) -> tuple[np.ndarray, io.Buffers]:
+    """A frame (display values, 16x24 by default) of one uniform surface of linear ``albedo`` facing the camera
+    4 m away, lit to shading 0.7 (as scenes.white_radiance lights the ground), and its ground-truth buffers."""
+    a = np.broadcast_to(np.float32(albedo), (h, w, 3)).copy()
+    b = io.Buffers(depth=np.full((h, w), 4.0, np.float32), normal=np.broadcast_to(np.float32([0, 0, 1]), (h, w, 3)),
+                   albedo=a, roughness=np.full((h, w), 0.5, np.float32), metallic=np.zeros((h, w), np.float32),
+                   mask=np.ones((h, w), np.float32))
+    return io.linear_to_display(a * np.float32(0.7)), b
+
+
 def test_direct_colour_head_tells_a_pink_ground_from_a_grey_one():
     """Two frames of one uniform surface under the same light, pink (albedo 0.6, 0.35, 0.35) and grey (0.4):
     the direct head's group norms normalise a uniform colour away, so after training on both it gives them
@@ -242,22 +252,14 @@ def test_direct_colour_head_tells_a_pink_ground_from_a_grey_one():
     fits both."""
     from lightcrafter.recon import estimator as est
 
-    h, w = 16, 24
-    frames = []
-    for alb in ((0.6, 0.35, 0.35), (0.4, 0.4, 0.4)):
-        a = np.broadcast_to(np.float32(alb), (h, w, 3)).copy()
-        rgb = io.linear_to_display(a * np.float32(0.7))  # a lit surface: shading 0.7 (scenes.white_radiance)
-        b = io.Buffers(depth=np.full((h, w), 4.0, np.float32), normal=np.broadcast_to(np.float32([0, 0, 1]), (h, w, 3)),
-                       albedo=a, roughness=np.full((h, w), 0.5, np.float32), metallic=np.zeros((h, w), np.float32),
-                       mask=np.ones((h, w), np.float32))
-        frames.append((rgb, b, np.eye(4)))
-    samples = [est.sample_from(rgb, b, c2w) for rgb, b, c2w in frames]
+    frames = [_flat_surface(np.float32(alb)) for alb in ((0.6, 0.35, 0.35), (0.4, 0.4, 0.4))]
+    samples = [est.sample_from(rgb, b, np.eye(4)) for rgb, b in frames]
     err = {}
     for head in ("direct", "direct_colour"):
         cfg = est.EstimatorConfig(widths=[8, 16], steps=150, batch=2, crop=None, lr=1e-2, eval_every=150,
                                   keep_best=False, threads=1, albedo_head=head)
         model, _ = est.train_estimator(samples, [], cfg, log=lambda m: None)
-        pred = est.predict(model, np.stack([f[0] for f in frames]))["albedo"]
+        pred = est.predict(model, np.stack([rgb for rgb, _ in frames]))["albedo"]
         err[head] = max(float(np.abs(pred[i] - f[1].albedo).mean()) for i, f in enumerate(frames))
     assert err["direct"] > 0.04, err  # half the mean channel difference is 0.05
     assert err["direct_colour"] < 0.02, err
@@ -270,17 +272,9 @@ def test_white_balance_augmentation_keeps_the_light_colour_out_of_the_albedo():
     colour) has learnt that a frame's colour may be the light's, and its albedo moves toward grey."""
     from lightcrafter.recon import estimator as est
 
-    h, w = 16, 24
     surfaces = [np.float32([0.4, 0.4, 0.4]), np.float32([0.6, 0.35, 0.35])]
-    samples = []
-    for alb in surfaces:
-        a = np.broadcast_to(alb, (h, w, 3)).copy()
-        b = io.Buffers(depth=np.full((h, w), 4.0, np.float32),
-                       normal=np.broadcast_to(np.float32([0, 0, 1]), (h, w, 3)), albedo=a,
-                       roughness=np.full((h, w), 0.5, np.float32), metallic=np.zeros((h, w), np.float32),
-                       mask=np.ones((h, w), np.float32))
-        samples.append(est.sample_from(io.linear_to_display(a * np.float32(0.7)), b, np.eye(4)))
-    shown = io.linear_to_display(np.broadcast_to(surfaces[1] * np.float32(0.7), (h, w, 3)))
+    samples = [est.sample_from(*_flat_surface(alb), np.eye(4)) for alb in surfaces]
+    shown = _flat_surface(surfaces[1])[0]  # the pink surface's frame: also the grey one under a pink light
     err = {}
     for wb in (0.0, 1.0):
         cfg = est.EstimatorConfig(widths=[8, 16], steps=150, batch=4, crop=None, lr=1e-2, eval_every=150,
