@@ -394,6 +394,41 @@ def test_pixel_anchor_starts_at_identity_has_no_block_grid_trains_and_round_trip
     assert not resolve_config({"preset": "paper", "model": {"anchor_space": "pixel"}})["model"]["anchor_affine"]
 
 
+def test_anchor_init_affine_colour_starts_the_refiner_at_the_colour_fit_of_its_training_pairs(tmp_path):
+    """model.anchor_init: affine_colour: proxies whose colours are a known per-channel map of their targets'
+    (gain 0.8, 0.7, 0.9 and offsets about 0.1): before training moves it, the refiner at residual scale 0 undoes
+    the map (it is the affine colour baseline); with the default (identity) it returns the proxy."""
+    from lightcrafter.refiner import load_model, train
+    from lightcrafter.refiner.baselines import apply_affine_colour, fit_affine_colour
+    from lightcrafter.refiner.toy import toy_pair
+
+    gain, offset = torch.tensor([0.8, 0.7, 0.9]).view(3, 1, 1, 1), torch.tensor([0.1, -0.05, 0.08]).view(3, 1, 1, 1)
+    pairs = []
+    for seed in range(2):
+        t = toy_pair(seed, num_frames=5, height=32, width=48)["target"]
+        pairs.append({"pair_id": f"p{seed}", "proxy": t * gain + offset, "target": t})
+    params = fit_affine_colour(pairs)
+    torch.testing.assert_close(torch.tensor(params["gain"]), 1 / gain.flatten(), atol=1e-4, rtol=0)  # proxy -> target
+    slow = {"max_steps": 1, "lr": 1e-12, "anchor_lr": 1e-12, "warmup_steps": 0, "checkpoint_every": 100}
+    err = {}
+    for init in ("identity", "affine_colour"):
+        cfg = resolve_config({"model": {"ae_coeffs": [256, 256, 256], "anchor_space": "pixel", "anchor_kernel_px": 1,
+                                        "anchor_init": init}, "train": slow})
+        train(cfg, pairs, tmp_path / init, progress=False)
+        m = load_model(tmp_path / init / "model.pt").eval()
+        with torch.no_grad():
+            out = m.ae.decode(m.anchor_map(m.ae.encode(pairs[0]["proxy"][None])))[0].clamp(-1, 1)
+        err[init] = float((out - pairs[0]["target"]).abs().mean())
+        if init == "affine_colour":
+            assert float((out - apply_affine_colour(params, pairs[0]["proxy"])).abs().max()) < 1e-3
+    assert err["identity"] > 0.05 and err["affine_colour"] < 1e-3, err
+    with pytest.raises(ValueError, match="anchor_init=affine_colour .* anchor_space: pixel"):
+        resolve_config({"model": {"anchor_space": "latent", "anchor_init": "affine_colour"}})
+    # like the pixel anchor itself, a laptop config's anchor_init carried into the paper preset changes nothing
+    assert resolve_config({"preset": "paper", "model": {"anchor_init": "affine_colour"}})["model"]["proxy_anchor"] == \
+        "none"
+
+
 def test_block_ratio_measures_an_added_grid_against_the_proxy():
     from lightcrafter.refiner.fit import block_ratio
     from lightcrafter.refiner.toy import toy_pair

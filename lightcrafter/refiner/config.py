@@ -103,6 +103,11 @@ class RefinerModelSettings(_Section):
         False, description="with a proxy anchor: the anchor is a learned per-latent-channel affine map of the proxy "
         "latent (gain and bias per channel, zero-initialised: still the identity at initialisation), trained with "
         "the network by the same loss; for the DCT autoencoder a per-frequency linear filter of the proxy")
+    anchor_init: Literal["identity", "affine_colour"] = Field(
+        "identity", description="start of the pixel anchor's colour map: identity | affine_colour = the affine "
+        "colour fit of the training pairs (baselines.affine_colour's least squares, per channel, display values), "
+        "so that before any step the refiner at residual scale 0 is that baseline and the transformer learns what "
+        "a colour map cannot (anchor_space: pixel; like it, no effect without an anchor)")
 
     @model_validator(mode="after")
     def _pixel_anchor_needs_the_dct_autoencoder(self):
@@ -110,6 +115,9 @@ class RefinerModelSettings(_Section):
         if self.anchor_space == "pixel" and anchored and self.kind != "tiny":
             raise ValueError("anchor_space=pixel filters the decoded proxy at every step, which only the tiny DCT "
                              "autoencoder makes cheap; use anchor_space: latent for kind=paper")
+        if self.anchor_init != "identity" and anchored and self.anchor_space != "pixel":
+            raise ValueError(f"anchor_init={self.anchor_init} starts the pixel anchor's colour map; set anchor_space: "
+                             "pixel, or anchor_init: identity")
         return self
 
 

@@ -137,6 +137,14 @@ class PixelAnchor(nn.Module):
         self.kernel = nn.Parameter(torch.zeros(3, 1, k, k))
         object.__setattr__(self, "_ae", ae)
 
+    @torch.no_grad()
+    def start_at_colour_fit(self, params: dict) -> None:
+        """Set the colour map to a per-channel fit ``{"gain": [3], "offset": [3]}`` on display values in [-1, 1]
+        (:func:`.baselines.fit_affine_colour`): (I + C) = diag(gain), b = offset; the kernel stays the identity."""
+        gain = torch.as_tensor(params["gain"], dtype=self.colour.dtype, device=self.colour.device)
+        self.colour.copy_(torch.diag(gain - 1))
+        self.bias.copy_(torch.as_tensor(params["offset"], dtype=self.bias.dtype, device=self.bias.device))
+
     def forward(self, a: torch.Tensor) -> torch.Tensor:
         import torch.nn.functional as F
 

@@ -58,8 +58,9 @@ import torch
 
 from lightcrafter.io import atomic_path, write_text
 
+from .baselines import fit_affine_colour
 from .conditioning import drop_proxy_latent, noisy_proxy, sample_log_sigma
-from .model import Refiner
+from .model import PixelAnchor, Refiner
 from .schedule import build_scheduler, train_timestep_range
 
 CKPT_DIR = "checkpoints"
@@ -216,6 +217,8 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     if cfg["model"]["kind"] == "tiny":
         n_fit = min(len(dataset), 8)
         model.ae.fit_normalisation(dataset[i]["target"][None] for i in range(n_fit))
+    if cfg["model"]["anchor_init"] == "affine_colour" and isinstance(model.anchor_map, PixelAnchor):
+        model.anchor_map.start_at_colour_fit(fit_affine_colour(dataset))  # a resumed run's checkpoint overrides it
     params = model.trainable_parameters()
     groups = [{"params": [p for p in model.transformer.parameters() if p.requires_grad]}]
     if model.anchor_map is not None:  # its own learning rate, no weight decay (it is an identity offset)
