@@ -243,6 +243,29 @@ def test_oidn_denoiser_brings_a_noisy_render_closer_to_the_converged_one():
     assert mse(clean[0]) < 0.5 * mse(noisy[0]), (mse(clean[0]), mse(noisy[0]))
 
 
+def test_oidn_denoiser_runs_without_loading_torch_and_still_takes_it_when_loaded():
+    """A proxy job never needs torch: the denoiser imports pyoidn without it (pyoidn alone would load it, 2 s
+    of each job). In a process that has torch already, pyoidn imports as usual. Both denoise a frame alike."""
+    import subprocess
+    import sys
+
+    code = """
+import sys, numpy as np
+{pre}
+from lightcrafter.proxy.denoise import denoise_hdr
+x = np.random.default_rng(0).random((24, 32, 3)).astype(np.float32)
+y = denoise_hdr(x)
+print("torch" in sys.modules, float(y.sum()))
+"""
+    out = {}
+    for pre in ("", "import torch"):
+        r = subprocess.run([sys.executable, "-c", code.format(pre=pre)], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        out[pre] = r.stdout.split()
+    assert out[""][0] == "False" and out["import torch"][0] == "True", out
+    assert out[""][1] == out["import torch"][1]
+
+
 def test_device_benchmark_interleaves_the_variants_it_can_run_and_names_the_rest(tmp_path):
     """benchmarks/proxy_device.py (the GPU check's Mitsuba part) on a CPU node: llvm_ad_rgb is timed in
     every repeat, cuda_ad_rgb is reported as not run with Mitsuba's reason, and a reference frame saved by

@@ -13,10 +13,28 @@ import numpy as np
 from lightcrafter import io
 
 
+def _import_pyoidn():
+    """pyoidn, imported without torch unless this process has already loaded it. pyoidn's own import loads torch
+    when it is installed (2 s of each proxy job), which it only needs for tensor inputs; R's frames are NumPy
+    arrays. ``sys.modules["torch"] = None`` makes ``import torch`` raise ImportError while pyoidn imports."""
+    import sys
+
+    if "pyoidn" in sys.modules or "torch" in sys.modules:
+        import pyoidn
+
+        return pyoidn
+    sys.modules["torch"] = None
+    try:
+        import pyoidn
+    finally:
+        del sys.modules["torch"]
+    return pyoidn
+
+
 def available() -> str | None:
     """None when OIDN can run here, else the reason (one line naming the fix)."""
     try:
-        import pyoidn  # noqa: F401
+        _import_pyoidn()
     except ImportError as exc:
         return f"pyoidn does not import ({exc}); pip install pyoidn"
     return None
@@ -27,7 +45,7 @@ def denoise_hdr(color: np.ndarray, albedo: np.ndarray | None = None, normal: np.
     why = available()
     if why:
         raise io.DataError(f"proxy denoiser: {why}")
-    import pyoidn
+    pyoidn = _import_pyoidn()
 
     c = np.ascontiguousarray(color, np.float32)
     if not np.isfinite(c).all() or (c < 0).any():
