@@ -394,7 +394,7 @@ def test_pixel_anchor_starts_at_identity_has_no_block_grid_trains_and_round_trip
     assert not resolve_config({"preset": "paper", "model": {"anchor_space": "pixel"}})["model"]["anchor_affine"]
 
 
-def test_anchor_init_affine_colour_starts_the_refiner_at_the_colour_fit_of_its_training_pairs(tmp_path):
+def test_anchor_init_affine_colour_starts_at_the_training_pairs_colour_fit(tmp_path):
     """model.anchor_init: affine_colour: proxies whose colours are a known per-channel map of their targets'
     (gain 0.8, 0.7, 0.9 and offsets about 0.1): before training moves it, the refiner at residual scale 0 undoes
     the map (it is the affine colour baseline); with the default (identity) it returns the proxy."""
