@@ -252,7 +252,7 @@ def test_direct_colour_head_tells_a_pink_ground_from_a_grey_one():
     fits both."""
     from lightcrafter.recon import estimator as est
 
-    frames = [_flat_surface(np.float32(alb)) for alb in ((0.6, 0.35, 0.35), (0.4, 0.4, 0.4))]
+    frames = [_flat_surface(alb) for alb in ((0.6, 0.35, 0.35), (0.4, 0.4, 0.4))]
     samples = [est.sample_from(rgb, b, np.eye(4)) for rgb, b in frames]
     err = {}
     for head in ("direct", "direct_colour"):

@@ -217,8 +217,6 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     if cfg["model"]["kind"] == "tiny":
         n_fit = min(len(dataset), 8)
         model.ae.fit_normalisation(dataset[i]["target"][None] for i in range(n_fit))
-    if cfg["model"]["anchor_init"] == "affine_colour" and isinstance(model.anchor_map, PixelAnchor):
-        model.anchor_map.start_at_colour_fit(fit_affine_colour(dataset))  # a resumed run's checkpoint overrides it
     params = model.trainable_parameters()
     groups = [{"params": [p for p in model.transformer.parameters() if p.requires_grad]}]
     if model.anchor_map is not None:  # its own learning rate, no weight decay (it is an identity offset)
@@ -262,6 +260,8 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         step, losses = st["step"], list(st["losses"])
         drawn = int(own.get("pairs_drawn", 0))
         log.info("resumed from %s at step %d", ckpt.name, step)
+    elif cfg["model"]["anchor_init"] == "affine_colour" and isinstance(model.anchor_map, PixelAnchor):
+        model.anchor_map.start_at_colour_fit(fit_affine_colour(dataset))  # a fresh start: one pass over the pairs
 
     dev = acc.device
     model.to(dev)
