@@ -7,8 +7,10 @@ textured GLB with known materials on a checker ground.
 from __future__ import annotations
 
 import copy
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -298,6 +300,32 @@ def test_two_processes_render_a_spec_to_the_same_bits(scene, tmp_path):
     for i in range(len(io.read_json(tmp_path / "a" / "rgb" / "L0.json")["frames"])):
         a = (tmp_path / "a" / "rgb" / "L0" / f"{i:04d}.exr").read_bytes()
         assert a == (tmp_path / "b" / "rgb" / "L0" / f"{i:04d}.exr").read_bytes(), f"frame {i} differs"
+
+
+@pytest.mark.skipif(len(getattr(os, "sched_getaffinity", lambda _: ())(0)) < 2, reason="needs two CPU cores")
+def test_a_one_thread_render_job_keeps_to_one_core_and_the_os_may_still_move_it(scene, tmp_path):
+    """``--threads 1`` holds the job to one core's CPU time: Blender's thread pool is sized at import
+    (build.import_bpy). Without it an idle pool worker spun on a second core: CPU time 1.5-1.9x the
+    wall time on this scene, all of it taken from a parallel job. The process's CPU affinity is
+    restored after the import, so the job is not pinned to a core."""
+    import resource
+
+    spec, work = scene
+    spec = copy.deepcopy(spec)
+    spec["render"]["spp"] = 32  # long enough a render for a spinning worker to show
+    io.write_json(tmp_path / "scene.json", spec)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    _run_cli("--scene", tmp_path / "scene.json", "--traj", "orbit", "--light", "L0", "--out", tmp_path / "o",
+             "--threads", "1").check_returncode()
+    wall_s = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    assert cpu_s < 1.25 * wall_s, f"CPU {cpu_s:.2f} s in {wall_s:.2f} s of wall time on one thread"
+    probe = ("import os; from lightcrafter.blender import build; a = os.sched_getaffinity(0); build.import_bpy(1); "
+             "print(os.sched_getaffinity(0) == a)")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "True"
 
 
 @pytest.mark.slow

@@ -135,6 +135,7 @@ def render_buffers(spec: dict, traj_id: str, out_dir, *, threads: int | None = N
     traj = build.trajectory(spec, traj_id)
     serve = buffer_frame_of(spec, traj_id)
     distinct = sorted(set(serve))
+    build.import_bpy(threads)
     build.check_inputs(spec)
     inputs = {"what": "buffers", "spec": spec, "trajectory": traj_id, "spp": BUFFER_SPP,
               "filter_px": BUFFER_FILTER_WIDTH_PX,
@@ -230,6 +231,7 @@ def render_rgb(
     rcfg = spec.get("render", {})
     spp = int(spp or rcfg.get("spp", 16))
     n = int(spec["num_frames"])
+    build.import_bpy(threads)
     build.check_inputs(spec, light_id)
     denoiser = rcfg.get("denoiser", "none")
     denoise_quality = denoise_quality_of(spec, traj, light_id)
