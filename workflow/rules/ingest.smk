@@ -80,7 +80,8 @@ rule fit_envmap:
     priority: 10  # as reconstruct_real
     conda:
         "../../envs/mitsuba.yaml"
-    threads: 2
+    threads: 1  # Dr.Jit gains little from a second thread: two fits side by side took 23-26 s, one after the other
+    # on two threads each 42-46 s (same fitted parameters)
     resources:
         mem_mb=4000,
         runtime=30,
@@ -113,7 +114,7 @@ rule relight_mit:
         "logs/benchmark/envfit/{pair}.tsv"
     conda:
         "../../envs/mitsuba.yaml"
-    threads: 2
+    threads: 1
     resources:
         mem_mb=4000,
         runtime=30,
