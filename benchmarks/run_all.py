@@ -20,7 +20,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 ORDER = ["cycles_spp", "cycles_device", "proxy_spp", "proxy_vs_cycles", "envfit", "envfit_response", "recon_error",
          "sfm_settings", "estimator_weights", "phi_budget", "refiner", "refiner_clean_buffers", "refiner_scale",
-         "dag_scale", "storage"]
+         "dag_scale", "storage", "job_threads"]
 # Benchmarks make bench does not run, and why (it lists them; tests/test_workflow_dag.py checks that every
 # benchmarks/*.py is in ORDER or here).
 NOT_IN_BENCH = {
@@ -33,7 +33,7 @@ NOT_IN_BENCH = {
 NEEDS_PIPELINE = {"proxy_vs_cycles": "ground_truth",
                   "refiner_clean_buffers": "results/datasets/clean_buffers/pairs.jsonl",
                   "refiner_scale": "results/datasets/full/pairs.jsonl", "storage": "pairs", "phi_budget": "all",
-                  "envfit_response": "all",
+                  "envfit_response": "all", "job_threads": "all",
                   "sfm_settings": "ground_truth", "estimator_weights": "ground_truth"}
 
 

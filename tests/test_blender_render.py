@@ -329,6 +329,20 @@ def test_a_one_thread_render_job_keeps_to_one_core_and_the_os_may_still_move_it(
 
 
 @pytest.mark.slow
+def test_job_threads_benchmark_times_both_pools_on_the_same_frames(tmp_path):
+    """benchmarks/job_threads.py --tiny: both arms of the Cycles part run, write the same frames, and the JSON
+    carries each arm's seconds and the interleaved speed ratio; its envfit part says why it did not run."""
+    out = tmp_path / "job_threads.json"
+    subprocess.run([sys.executable, str(REPO / "benchmarks" / "job_threads.py"), "--tiny", "--repeats", "1",
+                    "--out", str(out)], check=True, capture_output=True, timeout=300)
+    res = io.read_json(out)
+    assert res["cycles"]["same_frames"] is True
+    assert set(res["cycles"]["arms"]) == {"pool_sized", "pool_unsized"}
+    assert res["cycles"]["speed_ratio"]["pairs"] == 1 and res["cycles"]["speed_ratio"]["median"] > 0
+    assert res["not_run"] == {"envfit": "--tiny"}
+
+
+@pytest.mark.slow
 def test_oidn_denoiser_brings_few_samples_closer_to_many(scene, orbit_buffers, tmp_path):
     """render.denoiser: oidn (the default's ground truth; ci.yaml renders raw) with OIDN's high and balanced
     networks (render.denoise_quality) against raw frames at the same samples, all compared with a 256-spp raw
