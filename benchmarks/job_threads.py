@@ -5,7 +5,8 @@
   Blender's thread pool sized to the job's thread at bpy's import (``pool_sized``, what the scripts do:
   lightcrafter.blender.build.import_bpy) and with bpy imported first, its pool sized to every core
   (``pool_unsized``). Per arm: wall seconds until both jobs end, the two jobs' CPU seconds (user + system),
-  and whether both arms wrote the same frames (bit for bit).
+  and whether both arms wrote the same frames (bit for bit). Every job gets the thread variables Snakemake sets
+  (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ... = its threads), as in the pipeline.
 * ``envfit``: two fit_envmap jobs (the default run's real clips ``--envfit-clips``, config envfit and proxy
   settings) one after the other on two threads each (how Snakemake runs a 2-thread rule on 2 cores) against
   side by side on one thread each; whether both give the same fitted parameters. Skipped (with the reason)
@@ -49,13 +50,20 @@ UNSIZED = ("import runpy, sys; import bpy; sys.path.insert(0, {scripts!r}); sys.
            "runpy.run_path(sys.argv[0], run_name='__main__')")
 
 
-def run_jobs(commands: list[list[str]], parallel: bool) -> tuple[float, float]:
-    """Wall seconds until every command has ended and their CPU seconds (user + system, children)."""
+# what Snakemake's shell() sets to a job's threads (snakemake/shell.py)
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "GOTO_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+def run_jobs(commands: list[list[str]], parallel: bool, threads: int) -> tuple[float, float]:
+    """Wall seconds until every command has ended and their CPU seconds (user + system, children). Each runs
+    with the thread variables Snakemake gives a job of ``threads`` threads."""
+    env = dict(os.environ, **{k: str(threads) for k in THREAD_VARIABLES})
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
 
     def one(cmd):
-        res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+        res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, env=env)
         if res.returncode:
             raise SystemExit(f"job_threads: {' '.join(cmd[:3])}: exit {res.returncode}: {res.stderr.strip()[-300:]}")
 
@@ -95,7 +103,7 @@ def bench_cycles(scene: Path, lights: dict[str, str], repeats: int, tmp: Path) -
             out = tmp / f"cycles_{name}_{r}"
             cmds = [head + ["--scene", str(scene), "--traj", t, "--light", light, "--out", str(out / t), "--threads", "1"]
                     for t, light in lights.items()]
-            w, c = run_jobs(cmds, parallel=True)
+            w, c = run_jobs(cmds, parallel=True, threads=1)
             walls[name].append(w)
             cpus[name].append(c)
             print(f"cycles repeat {r}: {name}: {w:.2f} s wall, {c:.2f} s CPU", flush=True)
@@ -117,7 +125,7 @@ def bench_envfit(results: Path, clips: list[str], repeats: int, tmp: Path) -> di
             cmds = [[PY, FIT, "--clip", str(results / "recon" / "real" / c), "--frames", str(results / "real" / c / "rgb"),
                      "--out", str(tmp / f"envfit_{name}_{r}" / c), "--settings-json", settings, "--proxy", proxy,
                      "--threads", str(threads)] for c in clips]
-            w, cp = run_jobs(cmds, parallel=parallel)
+            w, cp = run_jobs(cmds, parallel=parallel, threads=threads)
             walls[name].append(w)
             cpus[name].append(cp)
             print(f"envfit repeat {r}: {name}: {w:.2f} s wall, {cp:.2f} s CPU", flush=True)
@@ -139,6 +147,7 @@ def main(argv=None) -> int:
     ap.add_argument("--results", type=Path, default=REPO / "results")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--envfit-clips", nargs=2, default=["cup_f60", "box_f100"])
+    ap.add_argument("--parts", nargs="+", choices=["cycles", "envfit"], default=["cycles", "envfit"])
     ap.add_argument("--tiny", action="store_true", help="the Cycles part on the render tests' tiny scene; no envfit")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "job_threads.json")
     a = ap.parse_args(argv)
@@ -160,14 +169,16 @@ def main(argv=None) -> int:
             spec = io.read_json(scene)
             lights = {t["id"]: t["source_light"] for t in spec["trajectories"][:2]}
         out["scene"] = "tiny_spec" if a.tiny else str(scene.relative_to(REPO) if scene.is_relative_to(REPO) else scene)
-        out["cycles"] = bench_cycles(scene, lights, a.repeats, tmp)
+        if "cycles" in a.parts:
+            out["cycles"] = bench_cycles(scene, lights, a.repeats, tmp)
         missing = [c for c in a.envfit_clips if not (a.results / "recon" / "real" / c / "buffers.json").is_file()]
-        if a.tiny or missing:
-            out["not_run"]["envfit"] = "--tiny" if a.tiny else f"no reconstruction of {missing} in {a.results}: make run"
+        if a.tiny or missing or "envfit" not in a.parts:
+            out["not_run"]["envfit"] = ("--tiny" if a.tiny else "--parts" if "envfit" not in a.parts
+                                        else f"no reconstruction of {missing} in {a.results}: make run")
         else:
             out["envfit"] = bench_envfit(a.results, a.envfit_clips, a.repeats, tmp)
     io.write_json(a.out, out)
-    print(f"wrote {a.out}: cycles {out['cycles']['speed_ratio']}"
+    print(f"wrote {a.out}:" + (f" cycles {out['cycles']['speed_ratio']}" if "cycles" in out else "")
           + (f", envfit {out['envfit']['speed_ratio']}" if "envfit" in out else ""))
     return 0
 
