@@ -306,8 +306,8 @@ def test_two_processes_render_a_spec_to_the_same_bits(scene, tmp_path):
 def test_a_one_thread_render_job_keeps_to_one_core_and_the_os_may_still_move_it(scene, tmp_path):
     """``--threads 1`` holds the job to one core's CPU time: Blender's thread pool is sized at import
     (build.import_bpy). Without it an idle pool worker spun on a second core: CPU time 1.5-1.9x the
-    wall time on this scene, all of it taken from a parallel job. The process's CPU affinity is
-    restored after the import, so the job is not pinned to a core."""
+    wall time on this scene. The process's CPU affinity is restored after the import, so the job is
+    not pinned to a core."""
     import resource
 
     spec, work = scene

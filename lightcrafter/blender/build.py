@@ -108,10 +108,11 @@ def import_bpy(threads: int | None = None):
 
     oneTBB sizes its pool from the process's CPU affinity when Blender starts; ``render.threads``
     limits Cycles' path tracing only. On a 2-core machine a 1-thread render job otherwise keeps an
-    idle TBB worker spinning on the second core (about 1.1 million ``sched_yield`` calls and 9 s of
-    system time per 13-frame job, the frames unchanged), which a parallel job pays for. The
-    affinity is narrowed to ``threads`` cores for the import only and then restored, so the
-    operating system still schedules the job on any core. No effect when ``bpy`` is already
+    idle TBB worker spinning on the second core (about 1.1 million ``sched_yield`` calls and 8-9 s
+    of system time per 13-frame job of the default, the frames unchanged): CPU time the job was not
+    given, counted against it where a scheduler meters CPU. The affinity is narrowed to ``threads``
+    cores for the import only and then restored, so the operating system still schedules the job on
+    any core. No effect when ``bpy`` is already
     imported, ``threads`` is None or not below the allowed cores, or the platform has no
     ``sched_setaffinity``.
     """
