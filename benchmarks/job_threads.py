@@ -96,13 +96,14 @@ def same_frames(a: Path, b: Path) -> bool:
 
 
 def bench_cycles(scene: Path, lights: dict[str, str], repeats: int, tmp: Path) -> dict:
-    arms = {"pool_unsized": [PY, "-c", UNSIZED.format(scripts=str(REPO / "scripts")), RENDER], "pool_sized": [PY, RENDER]}
+    arms = {"pool_unsized": [PY, "-c", UNSIZED.format(scripts=str(REPO / "scripts")), RENDER],
+            "pool_sized": [PY, RENDER]}
     walls, cpus = {k: [] for k in arms}, {k: [] for k in arms}
     for r in range(repeats):
         for name, head in arms.items():  # interleaved: unsized, sized, unsized, ...
             out = tmp / f"cycles_{name}_{r}"
-            cmds = [head + ["--scene", str(scene), "--traj", t, "--light", light, "--out", str(out / t), "--threads", "1"]
-                    for t, light in lights.items()]
+            cmds = [head + ["--scene", str(scene), "--traj", t, "--light", light, "--out", str(out / t),
+                            "--threads", "1"] for t, light in lights.items()]
             w, c = run_jobs(cmds, parallel=True, threads=1)
             walls[name].append(w)
             cpus[name].append(c)
@@ -122,9 +123,9 @@ def bench_envfit(results: Path, clips: list[str], repeats: int, tmp: Path) -> di
     walls, cpus = {k: [] for k in arms}, {k: [] for k in arms}
     for r in range(repeats):
         for name, (threads, parallel) in arms.items():
-            cmds = [[PY, FIT, "--clip", str(results / "recon" / "real" / c), "--frames", str(results / "real" / c / "rgb"),
-                     "--out", str(tmp / f"envfit_{name}_{r}" / c), "--settings-json", settings, "--proxy", proxy,
-                     "--threads", str(threads)] for c in clips]
+            cmds = [[PY, FIT, "--clip", str(results / "recon" / "real" / c),
+                     "--frames", str(results / "real" / c / "rgb"), "--out", str(tmp / f"envfit_{name}_{r}" / c),
+                     "--settings-json", settings, "--proxy", proxy, "--threads", str(threads)] for c in clips]
             w, cp = run_jobs(cmds, parallel=parallel, threads=threads)
             walls[name].append(w)
             cpus[name].append(cp)
@@ -151,7 +152,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tiny", action="store_true", help="the Cycles part on the render tests' tiny scene; no envfit")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "job_threads.json")
     a = ap.parse_args(argv)
-    out = {"name": "job_threads", "machine": {"cores": len(os.sched_getaffinity(0)), "platform": platform.platform()},
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    out = {"name": "job_threads", "machine": {"cores": cores, "platform": platform.platform()},
            "repeats": a.repeats, "order": "interleaved: first arm, second arm, first arm, ...", "not_run": {}}
     with tempfile.TemporaryDirectory(prefix="lc_bench_threads_") as tmp:
         tmp = Path(tmp)
