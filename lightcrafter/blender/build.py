@@ -112,28 +112,22 @@ def import_bpy(threads: int | None = None):
     of system time per 13-frame job of the default, the frames unchanged): CPU time the job was not
     given, counted against it where a scheduler meters CPU. The affinity is narrowed to ``threads``
     cores for the import only and then restored, so the operating system still schedules the job on
-    any core. No effect when ``bpy`` is already
-    imported, ``threads`` is None or not below the allowed cores, or the platform has no
-    ``sched_setaffinity``.
+    any core. No effect when ``bpy`` is already imported, ``threads`` is None or not below the
+    allowed cores, or the platform has no ``sched_setaffinity``.
     """
     import os
     import sys
 
     setaffinity = getattr(os, "sched_setaffinity", None)
-    if "bpy" in sys.modules or not threads or setaffinity is None:
-        import bpy
-
-        return bpy
-    allowed = os.sched_getaffinity(0)
-    if int(threads) >= len(allowed):
-        import bpy
-
-        return bpy
-    setaffinity(0, set(sorted(allowed)[: int(threads)]))
+    allowed = os.sched_getaffinity(0) if setaffinity else set()
+    narrow = "bpy" not in sys.modules and bool(threads) and int(threads) < len(allowed)
+    if narrow:
+        setaffinity(0, set(sorted(allowed)[: int(threads)]))
     try:
         import bpy
     finally:
-        setaffinity(0, allowed)
+        if narrow:
+            setaffinity(0, allowed)
     return bpy
 
 
