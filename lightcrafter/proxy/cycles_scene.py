@@ -136,9 +136,10 @@ def _build(job: dict):
 def _main(job_path: str) -> None:
     import time
 
-    import bpy
+    from lightcrafter.blender.build import import_bpy
 
     job = json.loads(Path(job_path).read_text())
+    bpy = import_bpy(job["threads"])  # the pool sized to the job's Cycles threads, as the render jobs'
     scene = _build(job)
     out = Path(job["out"])
     times = {}
