@@ -29,20 +29,10 @@ import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter.io import DataError, display_to_linear, to_uint8, write_frame_exr, write_json, write_video
 from lightcrafter.refiner import MissingWeightsError, PairsDataset, load_model, refine_video
+from lightcrafter.refiner.autoencoder import round_trip_psnr_db
 from lightcrafter.refiner.baselines import apply_affine_colour, load_affine_colour, load_regressor, regress_video
 from lightcrafter.refiner.data import to_display_frames
 from lightcrafter.refiner.strip import write_strip
-
-
-def autoencoder_round_trip_psnr_db(model, video, pad_mode: str) -> float:
-    """Held-out check that the latent space is not the bottleneck: decode(encode(video)) vs video."""
-    from lightcrafter.metrics import video_psnr_db
-    from lightcrafter.refiner import pad_to_4k1
-
-    padded, n = pad_to_4k1(video[None], pad_mode)
-    with torch.no_grad():
-        rt = model.ae.decode(model.ae.encode(padded.to(model.device)))[0, :, :n].clamp(-1, 1).cpu()
-    return video_psnr_db(to_display_frames(rt), to_display_frames(video))
 
 
 def write_frames(folder: Path, disp, exposure_ev: float) -> None:
@@ -108,8 +98,8 @@ def main() -> int:
         write_frames(out / pid, disp, ev)
         write_video(out / f"{pid}.mp4", to_uint8(disp))
         entry = {"pair_id": pid, "frames": f"{out / pid}", "num_frames": len(disp), "seconds": round(sec, 3),
-                 "ae_round_trip_psnr_db": autoencoder_round_trip_psnr_db(model, item["target"], pad),
-                 "ae_round_trip_proxy_psnr_db": autoencoder_round_trip_psnr_db(model, item["proxy"], pad),
+                 "ae_round_trip_psnr_db": round_trip_psnr_db(model.ae, item["target"], pad),
+                 "ae_round_trip_proxy_psnr_db": round_trip_psnr_db(model.ae, item["proxy"], pad),
                  "baselines": {}}
         outputs = {}
         if regressor is not None:

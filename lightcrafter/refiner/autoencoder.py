@@ -191,3 +191,19 @@ class CogVideoXVAE(nn.Module):
     def decode(self, lat: torch.Tensor) -> torch.Tensor:
         lat = lat.permute(0, 2, 1, 3, 4).to(self.vae.device, self.vae.dtype) / self.scaling
         return self.vae.decode(lat).sample.float()
+
+
+def round_trip_psnr_db(ae, video: torch.Tensor, pad_mode: str = "repeat_last") -> float:
+    """PSNR (dB, display values in [0, 1]) of ``decode(encode(video))`` against ``video``, a (3, N, H, W) clip in
+    [-1, 1]; N is padded to 4k + 1 frames with ``pad_mode`` (``infer.pad_frames``) and the padding dropped."""
+    from lightcrafter.metrics import video_psnr_db
+
+    from .data import to_display_frames
+    from .frames import pad_to_4k1
+
+    device = next((t.device for t in [*ae.parameters(), *ae.buffers()]), torch.device("cpu"))
+    padded, n = pad_to_4k1(video[None], pad_mode)
+    with torch.no_grad():
+        rt = ae.decode(ae.encode(padded.to(device)))[0, :, :n].clamp(-1, 1).cpu()
+    return video_psnr_db(to_display_frames(rt), to_display_frames(video))
+
