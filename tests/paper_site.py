@@ -147,7 +147,8 @@ def make_site(root: Path, dl3dv_scenes: int = 1200, mit_scenes: int = 10, conten
             "megasam": f"{tools}/megasam.sh {{frames}} {{out}} {{clip}}",
             "diffusion_renderer": f"{tools}/diffusion_renderer.sh {{frames_root}} {{out}}",
             "diffusion_light": f"{tools}/diffusion_light.sh {{frame0_dir}} {{out}}"}}},
-        "refiner": {"model": {"model_path": str(model)}},
+        # the stand-in's VAE has random weights (round trip about 15 dB): the floor is for real weights
+        "refiner": {"model": {"model_path": str(model), "min_ae_round_trip_db": None}},
     }
     if commands:
         site["recon"]["paper_stack"]["commands"] = commands

@@ -129,6 +129,22 @@ def test_tiny_checkpoint_has_the_released_layout_and_loads_through_from_pretrain
         m(z, z, torch.tensor([10]))  # diffusers would silently swap in sin-cos embeddings
 
 
+def test_a_vae_that_cannot_reconstruct_stops_paper_training_in_one_line_naming_its_folder(tiny_ckpt, tmp_path):
+    """The stand-in's VAE has random weights, as a wrong or mismatched VAE would: its round trip (about 15 dB) is
+    below refiner.model.min_ae_round_trip_db, checked before the first step with the paper preset's VAE."""
+    from lightcrafter.io import DataError
+    from lightcrafter.refiner import train
+    from lightcrafter.refiner.toy import ToyDataset
+
+    cfg = resolve_config({"preset": "paper", "device": "cpu", "model": {"model_path": str(tiny_ckpt)},
+                          "train": {"max_steps": 1}})
+    with pytest.raises(DataError) as exc:
+        train(cfg, ToyDataset(1), tmp_path, progress=False)
+    msg = str(exc.value)
+    assert msg.startswith(f"{tiny_ckpt}/vae: the autoencoder's round trip is 1") and "\n" not in msg
+    assert "min_ae_round_trip_db = 25" in msg and not list((tmp_path / "checkpoints").glob("*"))
+
+
 def _broken(tiny_ckpt, tmp_path, edit):
     root = tmp_path / "broken"
     shutil.copytree(tiny_ckpt, root)

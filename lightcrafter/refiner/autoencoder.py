@@ -207,3 +207,24 @@ def round_trip_psnr_db(ae, video: torch.Tensor, pad_mode: str = "repeat_last") -
         rt = ae.decode(ae.encode(padded.to(device)))[0, :, :n].clamp(-1, 1).cpu()
     return video_psnr_db(to_display_frames(rt), to_display_frames(video))
 
+
+def check_round_trip(ae, dataset, floor_db: float | None, source: str, pad_mode: str = "repeat_last",
+                     clips: int = 2) -> float | None:
+    """Mean :func:`round_trip_psnr_db` of the targets of the first ``clips`` items of ``dataset``; a
+    :class:`~lightcrafter.errors.DataError` naming ``source`` (where the autoencoder comes from) when it is below
+    ``floor_db`` (``refiner.model.min_ae_round_trip_db``): the refiner's output is decoded by this autoencoder, so
+    it can be no closer to a target than that. None (and no check) when ``floor_db`` is None or there is no item."""
+    from lightcrafter.errors import DataError
+
+    n = min(clips, len(dataset))
+    if floor_db is None or n == 0:
+        return None
+    items = [dataset[i] for i in range(n)]
+    db = sum(round_trip_psnr_db(ae, it["target"], pad_mode) for it in items) / n
+    if not db >= floor_db:  # NaN fails too
+        names = ", ".join(str(it.get("pair_id", i)) for i, it in enumerate(items))
+        raise DataError(
+            f"{source}: the autoencoder's round trip is {db:.1f} dB on the training targets ({names}), below "
+            f"refiner.model.min_ae_round_trip_db = {floor_db:g}: refined clips could be no closer to their targets; "
+            "use the model's own VAE weights (or more refiner.model.ae_coeffs for the tiny one), or lower the floor")
+    return db

@@ -84,6 +84,11 @@ class RefinerModelSettings(_Section):
     ae_normalisation: Literal["channel", "global"] = Field(
         "channel", description="tiny autoencoder latent scaling: channel (each channel to unit variance) | global "
         "(one scale, like the CogVideoX VAE's scaling factor: latent L2 = pixel L2 up to a constant)")
+    min_ae_round_trip_db: Optional[float] = Field(
+        25.0, description="floor (dB, display PSNR) of the autoencoder's round trip decode(encode(x)) on the first 2 "
+        "training targets, checked before training: below it training stops with a one-line error, since the "
+        "refined clips are decoded by it and can be no closer to their targets (the default's DCT autoencoder "
+        "38.6 dB; a VAE with the wrong weights or scaling decodes noise, about 10 dB). null = no check")
     empty_prompt_cache: Optional[str] = Field(
         None, description="file caching the T5 embedding of the empty prompt (.pt; paper)")
     proxy_anchor: Literal["none", "x0", "v"] = Field(

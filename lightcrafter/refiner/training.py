@@ -265,6 +265,14 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
 
     dev = acc.device
     model.to(dev)
+    if st is None:  # a fresh start checks the autoencoder (a resumed run did, with the same config)
+        from .autoencoder import check_round_trip
+
+        ae_source = (f"refiner.model.ae_coeffs {cfg['model']['ae_coeffs']}" if cfg["model"]["kind"] == "tiny"
+                     else f"{cfg['model']['model_path']}/vae")
+        ae_db = check_round_trip(model.ae, dataset, cfg["model"].get("min_ae_round_trip_db"), ae_source)
+        if ae_db is not None:
+            log.info("autoencoder round trip on the first training targets: %.2f dB", ae_db)
     model.transformer, opt, lr_sched = acc.prepare(model.transformer, opt, lr_sched)
     acc.step = step * tr["grad_accum"]  # accumulation phase restarts at an optimizer-step boundary
     sched = build_scheduler(cfg, "ddim")
