@@ -31,7 +31,7 @@ import _cli  # puts the repository on sys.path; run() is the one error path
 
 from lightcrafter import evaluation as ev
 from lightcrafter.io import DataError, linear_to_display, read_json, read_rgb_exr, write_json
-from lightcrafter.refiner.data import PairsDataset, load_frames, to_display_frames
+from lightcrafter.refiner.data import PairsDataset, load_frames, require_pairs, to_display_frames
 
 METRICS = tuple(ev.METRICS)  # the registry (lightcrafter.evaluation.METRICS), in its order
 
@@ -65,7 +65,7 @@ def main() -> int:
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     root = Path.cwd()
-    ds = PairsDataset(a.pairs, a.split, a.exposure_ev, cache=False)
+    ds = require_pairs(PairsDataset(a.pairs, a.split, a.exposure_ev, cache=False), a.pairs, a.split, "evaluate")
     manifest = read_json(a.refined)
     refined = {e["pair_id"]: e for e in manifest["pairs"]}
     externals = sorted(p.name for p in Path(a.external_dir).iterdir() if p.is_dir()) if a.external_dir and \

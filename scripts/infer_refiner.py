@@ -31,7 +31,7 @@ from lightcrafter.io import DataError, display_to_linear, to_uint8, write_frame_
 from lightcrafter.refiner import MissingWeightsError, PairsDataset, load_model, refine_video
 from lightcrafter.refiner.autoencoder import round_trip_psnr_db
 from lightcrafter.refiner.baselines import apply_affine_colour, load_affine_colour, load_regressor, regress_video
-from lightcrafter.refiner.data import to_display_frames
+from lightcrafter.refiner.data import require_pairs, to_display_frames
 from lightcrafter.refiner.strip import write_strip
 
 
@@ -77,7 +77,8 @@ def main() -> int:
     cfg = model.cfg
     regressor = load_regressor(a.model)
     affine = load_affine_colour(a.model)
-    ds = PairsDataset(a.pairs, a.split, cfg["data"]["exposure_ev"], cache=False)
+    ds = require_pairs(PairsDataset(a.pairs, a.split, cfg["data"]["exposure_ev"], cache=False), a.pairs, a.split,
+                       "refine")
     out = Path(a.out)
     ev, pad = cfg["data"]["exposure_ev"], cfg["infer"]["pad_frames"]
     entries = []

@@ -76,6 +76,17 @@ def test_train_infer_evaluate(tmp_path):
     d = m["vs_proxy"]["refined"]["psnr_db"]
     assert d["n"] == 1 and d["low"] is None and d["high"] is None and d["too_few"].startswith("too few clips")
     assert d["mean"] == pytest.approx(m["mean"]["refined"]["psnr_db"] - m["mean"]["proxy"]["psnr_db"])
+    # a benchmark of zero clips (no pair in the split asked for): one line naming the manifest, nothing written
+    for script, task, args in (("infer_refiner.py", "refine", ["--model", "m/model.pt", "--out", "r_val"]),
+                               ("evaluate_refiner.py", "evaluate", ["--refined", "r/manifest.json", "--out",
+                                                                    "r_val/metrics.json"])):
+        r = subprocess.run([sys.executable, str(SCRIPTS / script), "--pairs", "pairs.jsonl", "--split", "val", *args],
+                           cwd=tmp_path, capture_output=True, text=True)
+        last = r.stderr.strip().splitlines()[-1]
+        assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
+        assert last == f"{script[:-3]}: pairs.jsonl: no pairs with split == 'val' to {task} (the manifest has test: 1, " \
+            "train: 3); pass the split it has, or rebuild it with clips in that split"
+        assert not (tmp_path / "r_val").exists()
 
 
 def test_train_script_fails_clearly_without_train_pairs(tmp_path):
@@ -84,6 +95,32 @@ def test_train_script_fails_clearly_without_train_pairs(tmp_path):
     r = subprocess.run([sys.executable, str(SCRIPTS / "train_refiner.py"), "--pairs", "pairs.jsonl", "--out", "m"],
                        cwd=tmp_path, capture_output=True, text=True)
     assert r.returncode == 1 and "no pairs with split == 'train'" in r.stderr
+
+
+def test_a_nan_in_a_proxy_frame_stops_training_in_one_line_naming_the_frame(tmp_path):
+    from lightcrafter.io import read_rgb_exr
+
+    recs = []
+    for i in range(2):
+        p = toy_pair(i, num_frames=5)
+        _write_clip(tmp_path / f"p{i}/proxy", p["proxy"])
+        _write_clip(tmp_path / f"p{i}/target", p["target"])
+        recs.append({"pair_id": f"p{i}", "kind": "synthetic", "scene_id": f"s{i}", "proxy": f"p{i}/proxy",
+                     "target": f"p{i}/target", "num_frames": 5, "width": 48, "height": 32, "split": "train"})
+    write_jsonl(tmp_path / "pairs.jsonl", recs)
+    bad = tmp_path / "p0/proxy/0002.exr"
+    frame = read_rgb_exr(bad)
+    frame[3, 5] = np.nan
+    write_rgb_exr(bad, frame)
+    cfg = {"model": {"ae_coeffs": [8, 4, 4]}, "train": {"max_steps": 1}, "select": {"val_scenes": 0},
+           "baselines": {"regressor_steps": 0, "affine_colour": False}}
+    r = subprocess.run([sys.executable, str(SCRIPTS / "train_refiner.py"), "--pairs", "pairs.jsonl", "--config-json",
+                        json.dumps(cfg), "--out", "m", "--threads", "1"], cwd=tmp_path, capture_output=True, text=True)
+    last = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert last.startswith("train_refiner: ") and \
+        last.endswith("p0/proxy/0002.exr: 1 pixel(s) with NaN/Inf radiance; re-render this frame")
+    assert not (tmp_path / "m/model.pt").exists()
 
 
 @pytest.mark.slow

@@ -28,6 +28,19 @@ def read_pairs(pairs_path: str | Path, split: str | None = None) -> list[dict]:
     return [r for r in records if split is None or r["split"] == split]
 
 
+def require_pairs(dataset, pairs_path, split: str | None, task: str):
+    """``dataset`` itself when it has a pair, else a one-line :class:`DataError` naming the manifest and the split:
+    a benchmark of zero clips has no mean, so ``task`` (e.g. "refine") stops instead of writing an empty result."""
+    if len(dataset) == 0:
+        counts: dict = {}
+        for r in read_jsonl(pairs_path):
+            counts[r.get("split")] = counts.get(r.get("split"), 0) + 1
+        has = ", ".join(f"{k}: {v}" for k, v in sorted(counts.items(), key=str)) or "no pairs at all"
+        raise DataError(f"{pairs_path}: no pairs with split == {split!r} to {task} (the manifest has {has}); pass "
+                        "the split it has, or rebuild it with clips in that split")
+    return dataset
+
+
 def _resolve(p: str, root: Path, manifest_dir: Path) -> Path:
     p = Path(p)
     if p.is_absolute():
