@@ -72,16 +72,21 @@ def test_rotary_embedding_path_runs():
     assert grid_crop_region((2, 2), 6, 4) == ((0, 1), (4, 5))
 
 
+@pytest.mark.parametrize("anchor", ["none", "pixel"])
 @pytest.mark.parametrize("kind", ["zeros", "ones", "flash"])
 @pytest.mark.parametrize("guidance", [0.0, 20.0])
-def test_refined_video_of_extreme_proxies_is_finite_and_in_range(kind, guidance):
+def test_refined_video_of_extreme_proxies_is_finite_and_in_range(kind, guidance, anchor):
     """All-black, all-white and one-frame-flash proxies, CFG off and at 20, fused windows overlapping by one
-    latent frame: the refined video is finite, in [-1, 1], and keeps the proxy's frames."""
+    latent frame, without an anchor and with the default's (x0 anchor through the pixel colour map and 3x3
+    kernel): the refined video is finite, in [-1, 1], and keeps the proxy's frames. An untrained anchored
+    refiner (zero-initialised correction, identity anchor) returns a constant proxy, at any guidance."""
     from lightcrafter.refiner import refine_video
 
     torch.manual_seed(0)
-    cfg = resolve_config({"model": {"ae_coeffs": [8, 4, 4], "proxy_anchor": "none"},
-                          "infer": {"num_steps": 3, "window": 2, "overlap": 1}})
+    model_cfg = {"ae_coeffs": [8, 4, 4], "proxy_anchor": "none"} if anchor == "none" else \
+        {"ae_coeffs": [8, 4, 4], "anchor_space": "pixel", "anchor_kernel_px": 1}
+    cfg = resolve_config({"model": model_cfg, "infer": {"num_steps": 3, "window": 2, "overlap": 1}})
+    assert (cfg["model"]["proxy_anchor"] != "none") == (anchor == "pixel")
     model = Refiner(cfg).eval()
     proxy = torch.full((1, 3, 9, 16, 16), -1.0 if kind == "zeros" else 1.0)
     if kind == "flash":
@@ -90,6 +95,8 @@ def test_refined_video_of_extreme_proxies_is_finite_and_in_range(kind, guidance)
     with torch.no_grad():
         out = refine_video(model, proxy, cfg, generator=torch.Generator().manual_seed(0), guidance_scale=guidance)
     assert out.shape == proxy.shape and torch.isfinite(out).all() and out.abs().max() <= 1.0
+    if anchor == "pixel" and kind != "flash":
+        assert (out - proxy).abs().max() < 1e-3
 
 
 @pytest.mark.parametrize("dtype", ["float32", "bfloat16"])
