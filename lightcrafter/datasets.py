@@ -53,6 +53,7 @@ VARIANTS: dict[str, Variant] = {
                              "(ablation: no artifact matching)", "Ours (clean buffers: no artifact matching)"),
 }
 BENCHMARKS = ("synthetic", "real", "mit")
+ONE_FRAME_BENCHMARKS = ("mit",)  # pairs of one frame (MIT multi-illumination photographs): no temporal metric
 REFINER_SPLITS = ("train", "test")
 
 

@@ -649,14 +649,16 @@ class Context:
 @dataclass(frozen=True)
 class Metric:
     """One metric: ``name`` (results key), ``label`` (tables), ``higher_is_better`` (None: judged against the
-    target's own value, e.g. coding artifacts), ``needs_reference`` (False: also measured on the target) and
-    ``compute(video, ctx) -> MetricResult``."""
+    target's own value, e.g. coding artifacts, which the report shows apart from the tables), ``needs_reference``
+    (False: also measured on the target), ``compute(video, ctx) -> MetricResult`` and ``temporal`` (it compares
+    frames with each other: no column for a one-frame benchmark)."""
 
     name: str
     label: str
     higher_is_better: bool | None
     needs_reference: bool
     compute: Callable[[np.ndarray, Context], MetricResult]
+    temporal: bool = False
 
 
 def _needs(what, name):
@@ -669,12 +671,12 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
     Metric("lpips", "LPIPS", False, True, lambda v, c: _needs(c.lpips, "lpips") if isinstance(c.lpips, str)
            else lpips_video(v, c.target, model=c.lpips)),
     Metric("t_clip", "T-CLIP", True, False, lambda v, c: _needs(c.clip, "t_clip") if isinstance(c.clip, str)
-           else t_clip(v, embedder=c.clip)),
+           else t_clip(v, embedder=c.clip), temporal=True),
     Metric("warp_ssim", "Warp-SSIM", True, True, lambda v, c: warp_ssim(v, flows=c.flows) if c.flows is not None
-           else _needs(no_flow_reason(c.target), "warp_ssim")),
+           else _needs(no_flow_reason(c.target), "warp_ssim"), temporal=True),
     Metric("blockiness_8", "blockiness 8 px", None, False, lambda v, c: blockiness(v, 8)),
     Metric("blockiness_16", "blockiness 16 px", None, False, lambda v, c: blockiness(v, 16)),
-    Metric("jump_4", "4-frame jump", None, False, lambda v, c: block_jump(v, LATENT_FRAMES_PER_BLOCK)),
+    Metric("jump_4", "4-frame jump", None, False, lambda v, c: block_jump(v, LATENT_FRAMES_PER_BLOCK), temporal=True),
 )}
 
 

@@ -170,6 +170,16 @@ def test_tables_follow_the_registries_mit_results_reach_them():
     text = metrics_table_markdown(evals, [("Ours (full)", "full", "refined")])
     assert "mit PSNR" in text and "17.5" in text and "synthetic PSNR" in text
     assert "real PSNR" not in text  # no real results: no columns
+    # columns: every metric of the registry with a better direction; no temporal one for one-frame pairs (MIT)
+    from lightcrafter.evaluation import METRICS
+    from lightcrafter.report.common import TABLE_METRICS
+
+    ranked = [n for n, m in METRICS.items() if m.higher_is_better is not None]
+    assert list(TABLE_METRICS["synthetic"]) == list(TABLE_METRICS["real"]) == ranked
+    assert list(TABLE_METRICS["mit"]) == [n for n in ranked if not METRICS[n].temporal]
+    evals[("full", "real")] = {"mean": {"refined": {"psnr_db": 21.0, "warp_ssim": 0.961}}, "ci": {}}
+    text = metrics_table_markdown(evals, [("Ours (full)", "full", "refined")])
+    assert "real Warp-SSIM" in text and "0.961" in text and "mit Warp-SSIM" not in text
 
 
 def test_report_folder_is_self_contained(tmp_path):

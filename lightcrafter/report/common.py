@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import html
 
-from ..datasets import BENCHMARKS, VARIANTS
+from ..datasets import BENCHMARKS, ONE_FRAME_BENCHMARKS, VARIANTS
 from ..evaluation import METRICS as EV_METRICS
 
 
@@ -16,13 +16,15 @@ METRIC_LABELS = {n: (m.label, m.higher_is_better) for n, m in EV_METRICS.items()
 ARTIFACT_METRICS = tuple(n for n, m in EV_METRICS.items() if m.higher_is_better is None)
 
 
-# Table columns per held-out benchmark; the tables iterate the registry (lightcrafter.datasets.BENCHMARKS), and a
-# benchmark without results (e.g. mit without mit.root) has no columns.
-TABLE_METRICS = {"synthetic": ("psnr_db", "ssim", "lpips", "t_clip", "warp_ssim"), "real": ("psnr_db", "ssim", "lpips"),
-                 "mit": ("psnr_db", "ssim", "lpips")}
+# Table columns per held-out benchmark, from the registries (lightcrafter.datasets.BENCHMARKS,
+# lightcrafter.evaluation.METRICS): every metric with a better direction (the coding-artifact metrics have their own
+# section), but a temporal one on a one-frame benchmark; a benchmark without results (e.g. mit without mit.root) has
+# no columns.
+TABLE_METRICS = {b: tuple(n for n, m in EV_METRICS.items() if m.higher_is_better is not None
+                          and not (m.temporal and b in ONE_FRAME_BENCHMARKS)) for b in BENCHMARKS}
 
 
-TABLE_BENCHMARKS = tuple(b for b in BENCHMARKS if b in TABLE_METRICS)
+TABLE_BENCHMARKS = tuple(BENCHMARKS)
 
 
 METHOD_LABELS = {"proxy": "PBR proxy (Phi buffers)", "oracle_proxy": "PBR proxy (ground-truth buffers)",
