@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Score every method on a held-out benchmark against its targets (thin entry point over
-lightcrafter.evaluation).
+lightcrafter.protocol.evaluate_benchmark, the protocol, and lightcrafter.evaluation, the metrics).
 
   evaluate_refiner.py --pairs results/benchmarks/synthetic/pairs.jsonl --refined OUTDIR/manifest.json \
       --out results/eval/{variant}/synthetic/metrics.json [--lpips-weights DIR] [--clip-weights DIR] \
@@ -23,34 +23,11 @@ interval.
 """
 
 import argparse
-from pathlib import Path
-
-import numpy as np
 
 import _cli  # puts the repository on sys.path; run() is the one error path
 
-from lightcrafter import evaluation as ev
-from lightcrafter.io import DataError, linear_to_display, read_json, read_rgb_exr, write_json
-from lightcrafter.refiner.data import PairsDataset, load_frames, require_pairs, to_display_frames
-
-METRICS = tuple(ev.METRICS)  # the registry (lightcrafter.evaluation.METRICS), in its order
-
-
-def _folder_video(folder: Path, n: int, exposure_ev: float) -> np.ndarray | None:
-    """(N, H, W, 3) display video from linear EXRs (or 8-bit PNGs) in ``folder``; None when absent."""
-    if (folder / "0000.exr").is_file():
-        return np.stack([linear_to_display(read_rgb_exr(folder / f"{i:04d}.exr"), exposure_ev) for i in range(n)])
-    if (folder / "0000.png").is_file():
-        import imageio.v3 as iio
-
-        return np.stack([np.asarray(iio.imread(folder / f"{i:04d}.png"))[..., :3] / 255.0 for i in range(n)]).astype(np.float32)
-    return None
-
-
-def _ci(values) -> dict | None:
-    """:func:`lightcrafter.evaluation.bootstrap_ci` of the finite values (None when there are none)."""
-    v = [x for x in values if x is not None and np.isfinite(x)]
-    return ev.bootstrap_ci(v) if v else None
+from lightcrafter.io import DataError, write_json
+from lightcrafter.protocol import evaluate_benchmark
 
 
 def main() -> int:
@@ -64,75 +41,13 @@ def main() -> int:
     ap.add_argument("--external-dir", default=None)
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
-    root = Path.cwd()
-    ds = require_pairs(PairsDataset(a.pairs, a.split, a.exposure_ev, cache=False), a.pairs, a.split, "evaluate")
-    manifest = read_json(a.refined)
-    refined = {e["pair_id"]: e for e in manifest["pairs"]}
-    externals = sorted(p.name for p in Path(a.external_dir).iterdir() if p.is_dir()) if a.external_dir and \
-        Path(a.external_dir).is_dir() else []
-    networks = {"lpips": ev.load_lpips(a.lpips_weights), "clip": ev.load_clip_embedder(a.clip_weights)}
-    rows, methods, not_computed = [], ["proxy"], {}
-    for i in range(len(ds)):
-        item, rec = ds[i], ds.records[i]
-        e = refined.get(item["pair_id"])
-        if e is None:
-            raise DataError(f"{a.refined}: no refined video for pair {item['pair_id']}; rerun inference")
-        n = int(rec["num_frames"])
-        tgt = to_display_frames(item["target"])
-        videos = {"proxy": to_display_frames(item["proxy"])}
-        if rec.get("oracle_proxy"):
-            videos["oracle_proxy"] = _folder_video(root / rec["oracle_proxy"], n, a.exposure_ev)
-        videos["refined"] = to_display_frames(load_frames(Path(e["frames"]), e["num_frames"], a.exposure_ev))
-        for name, b in sorted((e.get("baselines") or {}).items()):
-            videos[name] = to_display_frames(load_frames(Path(b["frames"]), b["num_frames"], a.exposure_ev))
-        for name in externals:
-            v = _folder_video(Path(a.external_dir) / name / item["pair_id"], n, a.exposure_ev)
-            if v is not None:
-                videos[f"external:{name}"] = v
-        ctx = ev.Context.of(tgt, **networks)
-        row = {"pair_id": item["pair_id"], "scene_id": rec.get("scene_id"), "clip_id": rec.get("clip_id"),
-               "target_light": rec.get("target_light"), "motion": rec.get("motion"),
-               "ae_round_trip_psnr_db": e.get("ae_round_trip_psnr_db")}
-        for name, v in videos.items():
-            if v is None:
-                continue
-            if v.shape != tgt.shape:
-                raise DataError(f"pair {item['pair_id']}: method {name} has {v.shape}, target {tgt.shape}; "
-                                "outputs must match the target's frames and size")
-            res = ev.evaluate_video(v, ctx)
-            row[name] = {k: r.value for k, r in res.items()}
-            for k, r in res.items():
-                if r.value is None:
-                    not_computed[k] = r.status.removeprefix("not computed: ")
-            if name not in methods:
-                methods.append(name)
-        row["target"] = {k: r.value for k, r in ev.evaluate_target(ctx).items()}
-        rows.append(row)
-    mean, ci, vs_proxy = {}, {}, {}
-    tv = {k: [r["target"][k] for r in rows if r["target"].get(k) is not None] for k in rows[0]["target"]} if rows else {}
-    mean["target"] = {k: (float(np.mean(v)) if v else None) for k, v in tv.items()}
-    for m in methods:
-        vals = {k: [r[m][k] for r in rows if m in r and r[m].get(k) is not None] for k in METRICS}
-        mean[m] = {k: (float(np.mean(v)) if v else None) for k, v in vals.items()}
-        ci[m] = {k: _ci(v) for k, v in vals.items()}
-        if m != "proxy":
-            d = {}
-            for k in METRICS:
-                both = [(r[m][k], r["proxy"][k]) for r in rows if m in r and r[m].get(k) is not None
-                        and r["proxy"].get(k) is not None]
-                if both:
-                    d[k] = ev.paired_bootstrap_ci([x for x, _ in both], [y for _, y in both])
-            vs_proxy[m] = d
-    ae = [r["ae_round_trip_psnr_db"] for r in rows if r.get("ae_round_trip_psnr_db") is not None]
-    write_json(a.out, {"benchmark": Path(a.pairs).parent.name, "split": a.split, "num_pairs": len(rows),
-                       "ae_round_trip_psnr_db_mean": float(np.mean(ae)) if ae else None,
-                       "display": {"exposure_ev": a.exposure_ev}, "methods": methods, "metrics": list(METRICS),
-                       "mean": mean, "ci": ci, "vs_proxy": vs_proxy, "not_computed": not_computed, "pairs": rows,
-                       "inference": {"infer": manifest.get("infer"), "selection": manifest.get("selection")},
-                       "external_methods": externals})
-    line = "; ".join(f"{m} {mean[m]['psnr_db']:.2f} dB / SSIM {mean[m]['ssim']:.3f}" for m in methods
+    result = evaluate_benchmark(a.pairs, a.refined, a.split, a.exposure_ev, a.lpips_weights, a.clip_weights,
+                                a.external_dir)
+    write_json(a.out, result)
+    mean = result["mean"]
+    line = "; ".join(f"{m} {mean[m]['psnr_db']:.2f} dB / SSIM {mean[m]['ssim']:.3f}" for m in result["methods"]
                      if mean[m]["psnr_db"] is not None)
-    print(f"evaluate_refiner: {len(rows)} pairs; {line}")
+    print(f"evaluate_refiner: {result['num_pairs']} pairs; {line}")
     return 0
 
 
