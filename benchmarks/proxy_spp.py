@@ -15,7 +15,9 @@ Error: PSNR in dB (peak 1) on *display* values (lightcrafter.io.linear_to_displa
 Seconds: wall time of one render call after an untimed warm-up (R: kernels compiled, Cycles: kernels
 loaded, persistent data), i.e. the per-frame cost inside a clip.
 Speed ratio at equal error: Cycles seconds / R seconds at the same PSNR, interpolated linearly in
-(log seconds, PSNR) on each curve, at the highest PSNR both curves reach (and at fixed levels).
+(log seconds, PSNR) on each curve, at the highest PSNR both curves reach (and at fixed levels). The two
+renderers' curves are timed in ``--rounds`` interleaved rounds (R's curve, Cycles' curve, R's, Cycles', ...),
+a ratio per round; reported as the median with its range over rounds (``points`` carry the median seconds).
 
     .venv/bin/python benchmarks/proxy_spp.py      # ~2-4 minutes on 2 cores
 """
@@ -87,6 +89,27 @@ def ratios(r_points, c_points, levels) -> dict:
     return out
 
 
+def median_range(values: list) -> dict | None:
+    """{"median", "min", "max", "n"} of the values that are not None (None when there are none)."""
+    v = [x for x in values if x is not None]
+    if not v:
+        return None
+    return {"median": round(float(np.median(v)), 2), "min": round(min(v), 2), "max": round(max(v), 2), "n": len(v)}
+
+
+def round_ratios(r_rounds, c_rounds, r_spp, c_spp, r_ref, c_ref, common: float, levels, curve) -> dict:
+    """Per-round speed ratios (Cycles / R seconds at equal PSNR) at the common best PSNR and at ``levels``,
+    as the median and range over the interleaved rounds."""
+    per_round = []
+    for k in range(len(r_rounds)):
+        rp, cp = curve(r_rounds, r_spp, r_ref, k), curve(c_rounds, c_spp, c_ref, k)
+        per_round.append(ratios(rp, cp, [common, *levels]))
+    return {"at_common_best_db": round(common, 2),
+            "ratio_at_common_best": median_range([pr[f"{common:.1f}"] for pr in per_round]),
+            "at_levels_db": {f"{lv:.1f}": median_range([pr[f"{lv:.1f}"] for pr in per_round]) for lv in levels},
+            "per_round": per_round}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="results/bench/proxy_spp.json")
@@ -97,7 +120,8 @@ def main() -> None:
     ap.add_argument("--ref-spp", type=int, default=2048)
     ap.add_argument("--cycles-ref-spp", type=int, default=1024)
     ap.add_argument("--threads", type=int, default=1, help="CPU threads for each renderer")
-    ap.add_argument("--repeats", type=int, default=3, help="timed repeats of each render (minimum kept)")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds: R's curve, then Cycles', timed "
+                    "once per round (median and range of the per-round ratios)")
     ap.add_argument("--target-db", type=float, default=30.0, help="chosen spp: smallest reaching this PSNR")
     ap.add_argument("--hdri", default="builtin:forest.exr")
     a = ap.parse_args()
@@ -116,23 +140,32 @@ def main() -> None:
     view = FrameView(b, K, c2w, "bench")
     r = ProxyRenderer(Lighting(env=env, rotation_z_rad=ROT_Z), RenderSettings(visibility="primary"))
     ref, ref_s = time_r(r, view, a.ref_spp, seed=12345, repeats=1)
-    points = []
-    for spp in a.spp:
-        img, sec = time_r(r, view, spp, seed=0, repeats=a.repeats)
-        points.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(img, ref), 3)})
-        print(f"R       spp {spp:5d}: {sec:8.4f} s  {points[-1]['value']:6.2f} dB", flush=True)
-
     mesh = pixel_quad_mesh(b.depth, b.mask > 0.5, K, c2w, b.normal)
-    cyc = render_pixel_mesh(mesh, b, env_path, ROT_Z, K, c2w, list(a.cycles_spp), threads=a.threads,
-                            max_bounces=0, seed=7, repeats=a.repeats)
     cref = render_pixel_mesh(mesh, b, env_path, ROT_Z, K, c2w, [a.cycles_ref_spp], threads=a.threads,
                              max_bounces=0, seed=99)[0][0]
-    cyc = cyc + [(cref, 0.0)]
-    c_points, c_own = [], []
-    for spp, (img, sec) in zip(a.cycles_spp, cyc[:-1]):
-        c_points.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(img, ref), 3)})
-        c_own.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(img, cref), 3)})
-        print(f"Cycles  spp {spp:5d}: {sec:8.4f} s  {c_points[-1]['value']:6.2f} dB (own ref {c_own[-1]['value']:6.2f})",
+    r_rounds, c_rounds = [], []  # per round: [(image, seconds)] per spp; R then Cycles in every round
+    for k in range(a.rounds):
+        r_rounds.append([time_r(r, view, spp, seed=0, repeats=1) for spp in a.spp])
+        c_rounds.append(render_pixel_mesh(mesh, b, env_path, ROT_Z, K, c2w, list(a.cycles_spp), threads=a.threads,
+                                          max_bounces=0, seed=7, repeats=1))
+        print(f"round {k + 1}/{a.rounds}: R {sum(t for _, t in r_rounds[-1]):.2f} s, Cycles "
+              f"{sum(t for _, t in c_rounds[-1]):.2f} s over the spp ladders", flush=True)
+
+    def curve(rounds, spps, reference, k=None):
+        """Points of round k (None: median seconds over rounds); the images are the same in every round."""
+        out = []
+        for j, spp in enumerate(spps):
+            sec = rounds[k][j][1] if k is not None else float(np.median([rd[j][1] for rd in rounds]))
+            out.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(rounds[0][j][0],
+                                                                                                  reference), 3)})
+        return out
+
+    points, c_points, c_own = curve(r_rounds, a.spp, ref), curve(c_rounds, a.cycles_spp, ref), \
+        curve(c_rounds, a.cycles_spp, cref)
+    for p in points:
+        print(f"R       spp {p['setting']:5d}: {p['seconds']:8.4f} s  {p['value']:6.2f} dB", flush=True)
+    for p, q in zip(c_points, c_own):
+        print(f"Cycles  spp {p['setting']:5d}: {p['seconds']:8.4f} s  {p['value']:6.2f} dB (own ref {q['value']:6.2f})",
               flush=True)
     r_own = [dict(p) for p in points]
     common = min(max(p["value"] for p in points), max(p["value"] for p in c_points))
@@ -152,15 +185,13 @@ def main() -> None:
         "cycles_vs_r_reference_psnr_db": round(display_psnr_db(cref, ref), 3),
         "speed_ratio_at_equal_error": {
             "definition": "Cycles seconds / R seconds reaching the same display PSNR; each vs R's reference",
-            "at_common_best_db": round(common, 2), "ratio_at_common_best": ratios(points, c_points, [common])[f"{common:.1f}"],
-            "at_levels_db": ratios(points, c_points, levels),
+            **round_ratios(r_rounds, c_rounds, a.spp, a.cycles_spp, ref, ref, common, levels, curve),
         },
         "speed_ratio_at_equal_noise": {
             "definition": "as above, but each renderer against its own high-spp reference (noise only)",
-            "at_common_best_db": round(common_own, 2),
-            "ratio_at_common_best": ratios(r_own, c_own, [common_own])[f"{common_own:.1f}"],
-            "at_levels_db": ratios(r_own, c_own, levels),
+            **round_ratios(r_rounds, c_rounds, a.spp, a.cycles_spp, ref, cref, common_own, levels, curve),
         },
+        "rounds": a.rounds,
         "seconds_per_frame_at_chosen": next(p["seconds"] for p in points if p["setting"] == chosen),
         "resolution": {"width": a.width, "height": a.height},
         "scene": "4 spheres on a ground plane, forest.exr rotated 0.5 rad, direct light only, same quad mesh",

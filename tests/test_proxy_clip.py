@@ -138,3 +138,24 @@ def test_proxy_vs_cycles_reads_the_pipeline_layout(tmp_path):
         assert key in res
     assert res["points"][0]["setting"] == "orbit_static" and np.isfinite(res["points"][0]["value"])
     assert len(res["clips"][0]["psnr_db_per_frame"]) == N
+
+
+def test_proxy_spp_benchmark_times_r_and_cycles_in_interleaved_rounds(tmp_path):
+    """benchmarks/proxy_spp.py at a tiny size: both renderers' spp ladders are timed once per round, R then
+    Cycles, and each speed ratio is the median of the per-round ratios with their range."""
+    out = tmp_path / "proxy_spp.json"
+    p = subprocess.run([sys.executable, str(REPO / "benchmarks" / "proxy_spp.py"), "--out", str(out), "--width", "32",
+                        "--height", "24", "--spp", "1", "4", "16", "--cycles-spp", "1", "4", "16", "--ref-spp", "256",
+                        "--cycles-ref-spp", "128", "--rounds", "3"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert [ln.split(":")[0] for ln in p.stdout.splitlines() if ln.startswith("round")] == \
+        ["round 1/3", "round 2/3", "round 3/3"]
+    res = json.loads(out.read_text())
+    assert res["rounds"] == 3 and [q["setting"] for q in res["points"]] == [1, 4, 16]
+    for key in ("speed_ratio_at_equal_error", "speed_ratio_at_equal_noise"):
+        sr = res[key]
+        assert len(sr["per_round"]) == 3
+        best = sr["ratio_at_common_best"]
+        per = sorted(v for r in sr["per_round"] for k, v in r.items() if k not in sr["at_levels_db"])
+        assert best["n"] == 3 and best["median"] == round(per[1], 2) and (best["min"], best["max"]) == \
+            (round(per[0], 2), round(per[-1], 2))
