@@ -490,3 +490,22 @@ def test_cli_writes_outputs_and_reports_bad_input_in_one_line(scene, tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert json.loads((tmp_path / "o" / "fit.json").read_text())["fit"]["solver"] == "fast"
+
+
+def test_envfit_benchmark_runs_the_two_solvers_in_interleaved_rounds(tmp_path):
+    """benchmarks/envfit.py at a tiny size: fast, reference, fast, reference; the speedup is the median of the
+    per-round speedups with its range, each round timed at the same snapshots."""
+    out = tmp_path / "envfit.json"
+    p = subprocess.run([sys.executable, str(REPO / "benchmarks" / "envfit.py"), "--out", str(out), "--width", "32",
+                        "--height", "24", "--frames", "5", "--iterations", "25", "--video-spp", "8", "--eval-spp", "8",
+                        "--threads", "1", "--rounds", "3", "--skip-paper", "--gt-maps"],
+                       capture_output=True, text=True, timeout=900)
+    assert p.returncode == 0, p.stderr[-2000:]
+    order = [ln.split(": ")[1].split(" solver")[0] for ln in p.stdout.splitlines() if ln.startswith("round ")]
+    assert order == ["fast", "reference"] * 3
+    sp = json.loads(out.read_text())["speedup"]
+    assert sp["rounds"] == 3 and len(sp["per_round"]) == 3
+    per = sorted(r["speedup"] for r in sp["per_round"])
+    assert None not in per and sp["speedup"] == {"median": round(per[1], 2), "min": round(per[0], 2),
+                                                 "max": round(per[2], 2), "n": 3}
+    assert sp["goal_met"] == (sp["speedup"]["median"] >= sp["goal"])
