@@ -126,3 +126,33 @@ def test_albedo_colour_rows_move_only_the_clips_albedo_colour():
                                rtol=1e-5, atol=1e-6)
     for k in ("depth", "normal", "roughness", "metallic", "mask"):
         np.testing.assert_array_equal(getattr(rows["gt+phi:albedo_colour"][0].buffers, k), getattr(gt.buffers, k))
+
+
+@pytest.mark.slow
+def test_the_budget_of_a_run_measures_rs_own_sampling_noise_and_the_report_shows_it(e2e_run, tmp_path):
+    """benchmarks/phi_budget.py on the tiny run's test pairs with R's own rows: the oracle against 16x its samples
+    (its sampling noise), the denoised oracle, and the report's budget section listing them."""
+    import json
+    import subprocess
+    import sys
+
+    from lightcrafter.report.sections import _budget_section
+
+    repo = Path(__file__).resolve().parents[1]
+    out = tmp_path / "bench" / "phi_budget.json"
+    r = subprocess.run([sys.executable, str(repo / "benchmarks" / "phi_budget.py"), "--results",
+                        str(e2e_run / "results"), "--config", str(repo / "config" / "ci.yaml"), "--rows",
+                        "oracle,oracle@16x,phi", "--out", str(out)], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    res = json.loads(out.read_text())
+    table = res["table"]
+    assert res["pairs"] >= 1 and set(table) == {"oracle", "oracle+oidn", "oracle@16x", "oracle_vs_16x", "phi"}
+    for name, row in table.items():
+        if name == "oracle+oidn" and "not_computed" in row:  # no pyoidn: said so, not scored
+            continue
+        assert np.isfinite(row["psnr_db"]) and 0 < row["ssim"] <= 1, name
+    # R's sampling noise is far below its gap to the Cycles target
+    assert table["oracle_vs_16x"]["psnr_db"] > table["oracle"]["psnr_db"]
+    assert len(list((out.parent / "phi_budget_strips").glob("*.png"))) == res["pairs"]
+    html = _budget_section(tmp_path)
+    assert all(f"<td>{name}</td>" in html for name in ("oracle", "oracle@16x", "oracle_vs_16x", "phi"))
