@@ -35,7 +35,8 @@ def folder_video(folder: Path, n: int, exposure_ev: float) -> np.ndarray | None:
     if (folder / "0000.png").is_file():
         import imageio.v3 as iio
 
-        return np.stack([np.asarray(iio.imread(folder / f"{i:04d}.png"))[..., :3] / 255.0 for i in range(n)]).astype(np.float32)
+        frames = [np.asarray(iio.imread(folder / f"{i:04d}.png"))[..., :3] / 255.0 for i in range(n)]
+        return np.stack(frames).astype(np.float32)
     return None
 
 
@@ -95,7 +96,7 @@ def evaluate_benchmark(pairs, refined_manifest, split: str = "test", exposure_ev
         row["target"] = {k: r.value for k, r in ev.evaluate_target(ctx).items()}
         rows.append(row)
     mean, ci, vs_proxy = {}, {}, {}
-    tv = {k: [r["target"][k] for r in rows if r["target"].get(k) is not None] for k in rows[0]["target"]} if rows else {}
+    tv = {k: [r["target"][k] for r in rows if r["target"].get(k) is not None] for k in rows[0]["target"]}
     mean["target"] = {k: (float(np.mean(v)) if v else None) for k, v in tv.items()}
     for m in methods:
         vals = {k: [r[m][k] for r in rows if m in r and r[m].get(k) is not None] for k in METRICS}

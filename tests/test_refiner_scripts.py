@@ -84,8 +84,8 @@ def test_train_infer_evaluate(tmp_path):
                            cwd=tmp_path, capture_output=True, text=True)
         last = r.stderr.strip().splitlines()[-1]
         assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
-        assert last == f"{script[:-3]}: pairs.jsonl: no pairs with split == 'val' to {task} (the manifest has test: 1, " \
-            "train: 3); pass the split it has, or rebuild it with clips in that split"
+        assert last == (f"{script[:-3]}: pairs.jsonl: no pairs with split == 'val' to {task} (the manifest has "
+                        "test: 1, train: 3); pass the split it has, or rebuild it with clips in that split")
         assert not (tmp_path / "r_val").exists()
 
 
