@@ -56,6 +56,7 @@ from lightcrafter.envfit.fit import DEFAULT_RENDER, FitSettings, fit_envmap, opt
 from lightcrafter.envfit.model import EnvParams, MapHead, log_of_map  # noqa: E402
 from lightcrafter.envfit.transport import memory_bound_bytes  # noqa: E402
 from lightcrafter.proxy.renderer import RenderSettings  # noqa: E402
+from lightcrafter.speed import median_range  # noqa: E402
 
 SNAPSHOTS = [0, 25, 50, 100, 200, 300, 500, 750, 1000, 1250, 1500, 1750, 2000]
 
@@ -114,14 +115,6 @@ def seconds_to_reach(points: list, target: float) -> float | None:
             s0, s1 = max(p0["seconds"], 1e-3), max(p1["seconds"], 1e-3)
             return float(np.exp(np.log(s0) + f * (np.log(s1) - np.log(s0))))
     return pts[0]["seconds"] if pts and pts[0]["value"] <= target else None
-
-
-def median_range(values: list) -> dict | None:
-    """{"median", "min", "max", "n"} of the values that are not None (None when there are none)."""
-    v = [x for x in values if x is not None]
-    if not v:
-        return None
-    return {"median": round(float(np.median(v)), 2), "min": round(min(v), 2), "max": round(max(v), 2), "n": len(v)}
 
 
 def round_speedup(rd: dict, ref_pts: list, fast_pts: list, target: float) -> dict:

@@ -41,6 +41,7 @@ sys.path.insert(0, str(REPO))
 
 from lightcrafter import io  # noqa: E402
 from lightcrafter.config import effective_config  # noqa: E402
+from lightcrafter.speed import ratio_median_range  # noqa: E402
 
 PY = sys.executable
 RENDER = str(REPO / "scripts" / "render_gt.py")
@@ -78,11 +79,6 @@ def run_jobs(commands: list[list[str]], parallel: bool, threads: int) -> tuple[f
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-def ratio_summary(first: list[float], second: list[float]) -> dict:
-    r = [a / b for a, b in zip(first, second)]
-    return {"median": round(statistics.median(r), 3), "range": [round(min(r), 3), round(max(r), 3)], "pairs": len(r)}
-
-
 def arm_summary(walls: list[float], cpus: list[float]) -> dict:
     return {"wall_seconds": [round(w, 2) for w in walls], "cpu_seconds": [round(c, 2) for c in cpus],
             "wall_seconds_median": round(statistics.median(walls), 2),
@@ -111,7 +107,7 @@ def bench_cycles(scene: Path, lights: dict[str, str], repeats: int, tmp: Path) -
     return {"jobs": [f"render_gt.py --traj {t} --light {light} --threads 1" for t, light in lights.items()],
             "arms": {k: arm_summary(walls[k], cpus[k]) for k in arms},
             "speed_ratio": {"definition": "pool_unsized wall seconds / pool_sized, per interleaved pair",
-                            **ratio_summary(walls["pool_unsized"], walls["pool_sized"])},
+                            **ratio_median_range(walls["pool_unsized"], walls["pool_sized"])},
             "same_frames": all(same_frames(tmp / f"cycles_pool_unsized_{r}", tmp / f"cycles_pool_sized_{r}")
                                for r in range(repeats))}
 
@@ -138,7 +134,7 @@ def bench_envfit(results: Path, clips: list[str], repeats: int, tmp: Path) -> di
             same &= all(np.array_equal(a[k], b[k]) for k in ("log_map", "yaw_rad", "pitch_rad", "exposure_ev"))
     return {"clips": clips, "arms": {k: arm_summary(walls[k], cpus[k]) for k in arms},
             "speed_ratio": {"definition": "sequential_two_threads wall seconds / side_by_side_one_thread, per "
-                                          "interleaved pair", **ratio_summary(walls["sequential_two_threads"],
+                                          "interleaved pair", **ratio_median_range(walls["sequential_two_threads"],
                                                                              walls["side_by_side_one_thread"])},
             "same_fitted_parameters": bool(same)}
 

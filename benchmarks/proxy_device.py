@@ -29,7 +29,6 @@ import argparse
 import multiprocessing as mp
 import os
 import platform
-import statistics
 import sys
 import time
 import traceback
@@ -43,6 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lightcrafter import io  # noqa: E402
 from lightcrafter.evaluation import PSNR_CAP_DB  # noqa: E402
 from lightcrafter.metrics import display_psnr_db  # noqa: E402
+from lightcrafter.speed import median_range, ratio_median_range  # noqa: E402
 
 # The variants' reference frames use the same seed and sampler, so they share their samples and differ
 # by floating-point detail only (82.8 dB apart on an H200 node); independent noise alone would put two
@@ -103,11 +103,6 @@ def _worker(variant: str, conn, a: dict) -> None:
         except Exception as exc:  # noqa: BLE001 - the parent stops with this reason
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
             return
-
-
-def _summary(xs: list[float], nd: int = 4) -> dict:
-    return {"median": round(statistics.median(xs), nd), "min": round(min(xs), nd), "max": round(max(xs), nd),
-            "n": len(xs)}
 
 
 def _receive(p, conn, timeout_s: float) -> tuple:
@@ -177,13 +172,13 @@ def run(a: argparse.Namespace, other_ref: np.ndarray | None = None) -> dict:
     per_variant = {}
     for v in names:
         per_variant[v] = {
-            "seconds_per_frame": _summary(seconds[v]),
+            "seconds_per_frame": median_range(seconds[v], 4),
             "warmup_seconds": warm[v],
             "all_finite": finite[v] and bool(np.isfinite(images[v]).all() and np.isfinite(refs[v]).all()),
             "psnr_vs_own_reference_db": _psnr(images[v], refs[v]),
         }
     base = names[0]
-    ratios = {f"{base}/{v}": _summary([x / y for x, y in zip(seconds[base], seconds[v])], 3) for v in names[1:]}
+    ratios = {f"{base}/{v}": ratio_median_range(seconds[base], seconds[v]) for v in names[1:]}
     agreement = {f"{x}_vs_{y}": _psnr(refs[y], refs[x]) for i, x in enumerate(names) for y in names[i + 1:]}
     if other_ref is not None:
         for v in names:

@@ -41,6 +41,7 @@ from lightcrafter.proxy import synthetic as syn  # noqa: E402
 from lightcrafter.proxy.geometry import pixel_quad_mesh  # noqa: E402
 from lightcrafter.proxy.lighting import Lighting  # noqa: E402
 from lightcrafter.proxy.renderer import FrameView, ProxyRenderer, RenderSettings  # noqa: E402
+from lightcrafter.speed import median_range  # noqa: E402
 
 ROT_Z = 0.5
 
@@ -87,14 +88,6 @@ def ratios(r_points, c_points, levels) -> dict:
         tr, tc = seconds_at(r_points, lv), seconds_at(c_points, lv)
         out[f"{lv:.1f}"] = None if tr is None or tc is None else round(tc / tr, 2)
     return out
-
-
-def median_range(values: list) -> dict | None:
-    """{"median", "min", "max", "n"} of the values that are not None (None when there are none)."""
-    v = [x for x in values if x is not None]
-    if not v:
-        return None
-    return {"median": round(float(np.median(v)), 2), "min": round(min(v), 2), "max": round(max(v), 2), "n": len(v)}
 
 
 def round_ratios(r_rounds, c_rounds, r_spp, c_spp, r_ref, c_ref, common: float, levels, curve) -> dict:

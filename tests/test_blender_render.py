@@ -338,7 +338,7 @@ def test_job_threads_benchmark_times_both_pools_on_the_same_frames(tmp_path):
     res = io.read_json(out)
     assert res["cycles"]["same_frames"] is True
     assert set(res["cycles"]["arms"]) == {"pool_sized", "pool_unsized"}
-    assert res["cycles"]["speed_ratio"]["pairs"] == 1 and res["cycles"]["speed_ratio"]["median"] > 0
+    assert res["cycles"]["speed_ratio"]["n"] == 1 and res["cycles"]["speed_ratio"]["median"] > 0
     assert res["not_run"] == {"envfit": "--tiny"}
 
 
