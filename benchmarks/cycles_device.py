@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
 import tempfile
 import time
@@ -29,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lightcrafter import io  # noqa: E402
 from lightcrafter.blender import build, render, testing  # noqa: E402
 from lightcrafter.metrics import psnr_db  # noqa: E402
+from lightcrafter.speed import median_range, ratio_median_range  # noqa: E402
 
 PAPER = {"width": 720, "height": 480, "spp": 64, "max_bounces": 6, "denoiser": "oidn"}
 
@@ -76,14 +76,16 @@ def main(argv=None) -> int:
     cpu = io.linear_to_display(frames["cpu"]) if "cpu" in frames else None
     results = {}
     for dev, ss in seconds.items():
-        results[dev] = {"seconds_median": round(statistics.median(ss), 3), "seconds_range": [round(min(ss), 3), round(max(ss), 3)],
-                        "repeats": len(ss)}
+        results[dev] = {"seconds_per_frame": median_range(ss)}
+        if dev != "cpu" and "cpu" in seconds:  # the same repeat of each device: an interleaved pair
+            results[dev]["speed_ratio_cpu_over_this"] = ratio_median_range(seconds["cpu"], ss)
         if cpu is not None and dev != "cpu":
             results[dev]["psnr_db_vs_cpu_frame"] = round(psnr_db(io.linear_to_display(frames[dev]), cpu), 2)
     out = {"name": "cycles_device", "settings": PAPER, "scene": "lightcrafter.blender.testing.tiny_spec frame 0, L0",
            "machine": {"cores": os.cpu_count(), "platform": platform.platform()},
            "devices": results, "not_run": not_run,
-           "method": "interleaved repeats per device, median and range of wall seconds per frame; PSNR on display values"}
+           "method": "interleaved repeats per device, median and range of wall seconds per frame (lightcrafter.speed); "
+                     "PSNR on display values"}
     io.write_json(a.out, out)
     print(f"wrote {a.out}: {results}; not run: {list(not_run)}")
     return 0
