@@ -4,8 +4,9 @@ Cycles device: seconds per frame, and the GPU frames' display PSNR against the C
 Renders frame 0 of lightcrafter.blender.testing.tiny_spec (a textured GLB, primitives, HDRI; the
 scene the render tests use) resized to 720x480. Devices are measured in interleaved repeats (cpu,
 optix, cuda, cpu, ...; a device the node lacks is reported as not run, with Cycles' reason) and each
-reports the median seconds with its range. Seconds are the wall time of posing the frame and one render
-call (path tracing, denoising, EXR write/read) with Cycles' default threads.
+reports the median seconds with its range, each GPU device also its speed ratio to the CPU per repeat (a GPU
+device renders once untimed first: kernel loading is not the frame's cost). Seconds are the wall time of posing
+the frame and one render call (path tracing, denoising, EXR write/read) with Cycles' default threads.
 
     .venv/bin/python benchmarks/cycles_device.py [--repeats 3] [--devices cpu optix cuda]
     -> results/bench/cycles_device.json
@@ -64,6 +65,10 @@ def main(argv=None) -> int:
                 not_run[dev] = f"asked for {dev}, Cycles used {used}"
                 continue
             usable.append(dev)
+        for dev in usable:  # an untimed render on each GPU device first: it loads the device's kernels
+            if dev != "cpu":
+                build.select_device(dev)
+                render_once(built, spec)
         seconds = {d: [] for d in usable}
         frames = {}
         for r in range(a.repeats):

@@ -96,10 +96,11 @@ def round_ratios(r_rounds, c_rounds, r_spp, c_spp, r_ref, c_ref, common: float, 
     per_round = []
     for k in range(len(r_rounds)):
         rp, cp = curve(r_rounds, r_spp, r_ref, k), curve(c_rounds, c_spp, c_ref, k)
-        per_round.append(ratios(rp, cp, [common, *levels]))
+        per_round.append({"common_best": ratios(rp, cp, [common])[f"{common:.1f}"], "levels": ratios(rp, cp, levels)})
     return {"at_common_best_db": round(common, 2),
-            "ratio_at_common_best": median_range([pr[f"{common:.1f}"] for pr in per_round]),
-            "at_levels_db": {f"{lv:.1f}": median_range([pr[f"{lv:.1f}"] for pr in per_round]) for lv in levels},
+            "ratio_at_common_best": median_range([pr["common_best"] for pr in per_round]),
+            "at_levels_db": {f"{lv:.1f}": median_range([pr["levels"][f"{lv:.1f}"] for pr in per_round])
+                             for lv in levels},
             "per_round": per_round}
 
 

@@ -49,8 +49,9 @@ def finite_ci(values) -> dict | None:
 def evaluate_benchmark(pairs, refined_manifest, split: str = "test", exposure_ev: float = 0.0,
                        lpips_weights=None, clip_weights=None, external_dir=None, root=None) -> dict:
     """Score the methods of every ``split`` pair of the manifest ``pairs`` (refined outputs from the inference
-    manifest ``refined_manifest``); returns the JSON-ready result (module docstring). Relative frame folders
-    resolve against ``root`` (default: the working directory)."""
+    manifest ``refined_manifest``); returns the JSON-ready result (module docstring). A pair record's relative
+    ``oracle_proxy`` folder resolves against ``root`` (default: the working directory); the inference manifest's
+    folders and ``external_dir`` are taken as they are written."""
     root = Path(root) if root is not None else Path.cwd()
     ds = require_pairs(PairsDataset(pairs, split, exposure_ev, cache=False), pairs, split, "evaluate")
     manifest = read_json(refined_manifest)

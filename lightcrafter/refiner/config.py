@@ -88,7 +88,7 @@ class RefinerModelSettings(_Section):
         25.0, description="floor (dB, display PSNR) of the autoencoder's round trip decode(encode(x)) on the first 2 "
         "training targets, checked before training: below it training stops with a one-line error, since the "
         "refined clips are decoded by it and can be no closer to their targets (the default's DCT autoencoder "
-        "38.6 dB; a VAE with the wrong weights or scaling decodes noise, about 10 dB). null = no check")
+        "38.6 dB; a VAE with the wrong or random weights, about 15 dB). null = no check")
     empty_prompt_cache: Optional[str] = Field(
         None, description="file caching the T5 embedding of the empty prompt (.pt; paper)")
     proxy_anchor: Literal["none", "x0", "v"] = Field(

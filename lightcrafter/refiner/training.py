@@ -157,7 +157,8 @@ class TargetLatentCache:
 
 
 # Keys that may change between a killed run and its resumption without invalidating it.
-_RESUMABLE_CHANGES = {("train", "max_steps"), ("train", "checkpoint_every"), ("train", "log_every")}
+_RESUMABLE_CHANGES = {("train", "max_steps"), ("train", "checkpoint_every"), ("train", "log_every"),
+                      ("model", "min_ae_round_trip_db")}  # a check before the first step, not part of the state
 
 
 def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
@@ -265,7 +266,8 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
 
     dev = acc.device
     model.to(dev)
-    if st is None:  # a fresh start checks the autoencoder (a resumed run did, with the same config)
+    if st is None and objective == "diffusion":  # a fresh start checks the autoencoder once (the regressor
+        # baseline trains on the same one; a resumed run checked it when it started)
         from .autoencoder import check_round_trip
 
         ae_source = (f"refiner.model.ae_coeffs {cfg['model']['ae_coeffs']}" if cfg["model"]["kind"] == "tiny"
