@@ -385,6 +385,31 @@ def test_static_detection_survives_a_rotating_light():
     assert median_motion_px(np.stack(frames_pan)) > 2.0
 
 
+def test_a_camera_far_off_the_path_counts_as_unregistered():
+    """A study clip's structure from motion put one of 13 cameras 1.9e8 times farther from the path than the
+    others, and Align turned that into cameras 6e7 m off: such a camera is dropped, the rest of a path kept."""
+    from lightcrafter.recon.cameras import FAR_CAMERA_FACTOR, drop_far_cameras
+
+    n = 13
+    c2w = np.repeat(np.eye(4)[None], n, axis=0)
+    c2w[:, :3, 3] = np.linspace([2.6, 4.1, -0.1], [-4.3, -6.0, 0.1], n)  # a straight path, as that clip's
+    reg = np.ones(n, bool)
+    assert drop_far_cameras(c2w, reg).all()  # the path's ends are ~2x the median distance
+    far = c2w.copy()
+    far[10, :3, 3] = (3.3e8, 4.8e8, 2.5e8)
+    kept = drop_far_cameras(far, reg)
+    assert kept.sum() == n - 1 and not kept[10]
+    near_limit = c2w.copy()
+    typical = np.median(np.linalg.norm(c2w[:, :3, 3] - np.median(c2w[:, :3, 3], 0), axis=1))
+    near_limit[10, :3, 3] = np.median(c2w[:, :3, 3], 0) + [0.9 * FAR_CAMERA_FACTOR * typical, 0.0, 0.0]
+    assert drop_far_cameras(near_limit, reg).all()
+    still = np.repeat(np.eye(4)[None], n, axis=0)  # every camera at one point: nothing to measure, all kept
+    assert drop_far_cameras(still, reg).all()
+    unreg = reg.copy()
+    unreg[[0, 1]] = False  # frames already unregistered stay so
+    assert (drop_far_cameras(far, unreg) == (unreg & kept)).all()
+
+
 def test_static_ground_truth_camera_takes_its_scale_from_depth_not_from_the_estimates_jitter():
     """A static camera (the paper's static_rotating_light motion) reconstructed with a little drift:
     the centres' spread ratio would be ~0 (or an error); the depth maps give the true scale."""
