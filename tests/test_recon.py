@@ -410,6 +410,32 @@ def test_a_camera_far_off_the_path_counts_as_unregistered():
     assert (drop_far_cameras(far, unreg) == (unreg & kept)).all()
 
 
+def test_static_detection_looks_at_the_surface_not_a_background_turning_with_the_light():
+    """A fixed camera over a static table whose background (the environment map at infinity) turns with a
+    rotating light, as in a study clip that structure from motion then took for a moving camera: the surface
+    keeps still; without the surface mask the background's motion dominates."""
+    import cv2
+
+    from lightcrafter.recon.cameras import median_motion_px
+
+    rng = np.random.default_rng(2)
+    fg = cv2.GaussianBlur((rng.random((64, 96)) > 0.5).astype(np.float32), (0, 0), 1.0)
+    bg = cv2.GaussianBlur((rng.random((40, 400)) > 0.5).astype(np.float32), (0, 0), 1.0)
+    frames, surface = [], []
+    for i in range(5):
+        f = np.zeros((64, 96), np.float32)
+        f[:40] = bg[:, 6 * i:6 * i + 96]  # the environment turns: 6 px per frame
+        f[40:] = fg[40:]
+        frames.append(np.repeat((f * 220 + 20)[..., None], 3, -1).astype(np.uint8))
+        m = np.zeros((64, 96), bool)
+        m[40:] = True
+        surface.append(m)
+    frames, surface = np.stack(frames), np.stack(surface)
+    assert median_motion_px(frames) > 2.0
+    assert median_motion_px(frames, surface=surface) < 0.5
+    assert median_motion_px(frames, surface=np.zeros_like(surface)) == median_motion_px(frames)  # no surface
+
+
 def test_static_ground_truth_camera_takes_its_scale_from_depth_not_from_the_estimates_jitter():
     """A static camera (the paper's static_rotating_light motion) reconstructed with a little drift:
     the centres' spread ratio would be ~0 (or an error); the depth maps give the true scale."""
@@ -445,7 +471,7 @@ def test_sfm_retries_its_overrides_in_order_and_records_the_attempt_that_succeed
             info={"method": "colmap"})
 
     monkeypatch.setattr(cameras, "_colmap", fake_colmap)
-    monkeypatch.setattr(cameras, "median_motion_px", lambda frames: 5.0)  # a moving camera
+    monkeypatch.setattr(cameras, "median_motion_px", lambda frames, **kw: 5.0)  # a moving camera
     frames = np.zeros((4, 16, 24, 3), np.uint8)
     s = SfM(upscale=2, init_min_tri_angle_deg=8.0,
             retry=[{"init_min_tri_angle_deg": 6.0}, {"init_min_tri_angle_deg": 4.0, "abs_pose_min_num_inliers": 15}])

@@ -20,7 +20,8 @@ moving clip of the run stayed under 10x); such a frame is counted as unregistere
 (:func:`drop_far_cameras`, ``FAR_CAMERA_FACTOR``) and takes its nearest registered neighbour's pose.
 
 Static camera: when the typical motion of SIFT matches between consecutive frames (median over pairs
-of the per-pair median) stays under ``static_motion_px`` pixels, the camera is taken as static and structure from motion is
+of the per-pair median; keypoints on the G-buffer estimator's surface only, when Phi gives it, since a
+background at infinity turns with a rotating environment light) stays under ``static_motion_px`` pixels, the camera is taken as static and structure from motion is
 not run (it cannot: a pure rotation or a static camera gives no two-view geometry). All frames
 then get the identity pose. When SfM fails on a clip whose motion is under twice that threshold, the
 camera is taken as static too (little image motion and no two-view geometry); the clip's ``method``
@@ -92,24 +93,38 @@ def prior_intrinsics(width: int, height: int, fov_x_rad: float) -> np.ndarray:
     return intrinsics(width, height, fov_x_rad)
 
 
-def median_motion_px(frames: np.ndarray, ratio: float = 0.75) -> float:
+def median_motion_px(frames: np.ndarray, ratio: float = 0.75, surface: np.ndarray | None = None) -> float:
     """Median, over consecutive frame pairs, of the median displacement (px) of their SIFT matches
     (OpenCV SIFT, Lowe's ratio test): the typical image motion per frame, robust to the few pairs in
     which moving shadows dominate the matches. SIFT matching, unlike brightness-constancy tracking, holds
     under the strong lighting changes of a rotating environment, where moving shadows are a minority
     of the matches. Returns 0.0 for a one-frame clip and for frames that do not change (mean absolute
     difference of consecutive uint8 frames below 0.5 levels: a featureless video that does not change, e.g.
-    black, has no motion to measure); inf when fewer than 8 matches are found."""
-    import cv2
+    black, has no motion to measure); inf when fewer than 8 matches are found.
 
+    ``surface`` (N, H, W) bool: keypoints on these pixels only (the estimator's surface), so that a background
+    at infinity that turns with a rotating environment light (a synthetic clip's visible HDRI, the sky) does not
+    read as camera motion; when that leaves a pair of frames fewer than 8 matches, every pixel counts."""
     if len(frames) < 2:
         return 0.0
     f16 = np.asarray(frames).astype(np.int16)
     if all(np.abs(b - a).mean() < 0.5 for a, b in zip(f16[:-1], f16[1:])):
         return 0.0
+    if surface is not None:
+        on_surface = _sift_motion_px(frames, ratio, [np.asarray(m, bool).astype(np.uint8) * 255 for m in surface])
+        if np.isfinite(on_surface):
+            return on_surface
+    return _sift_motion_px(frames, ratio, [None] * len(frames))
+
+
+def _sift_motion_px(frames: np.ndarray, ratio: float, masks: list) -> float:
+    """:func:`median_motion_px` of keypoints inside ``masks`` (uint8, 255 = use; None = every pixel)."""
+    import cv2
+
     sift = cv2.SIFT_create(nfeatures=2000)
     matcher = cv2.BFMatcher(cv2.NORM_L2)
-    feats = [sift.detectAndCompute(cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY), None) for f in frames]
+    feats = [sift.detectAndCompute(cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY), m)
+             for f, m in zip(frames, masks)]
     per_pair = []
     for (k0, d0), (k1, d1) in zip(feats[:-1], feats[1:]):  # consecutive frames: the smallest lighting change
         if d0 is None or d1 is None or len(k0) < 8 or len(k1) < 2:
@@ -131,8 +146,10 @@ def static_track(n: int, K: np.ndarray) -> CameraTrack:
 
 
 def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings = SfMSettings(),
-                     name: str = "clip", work_dir: str | Path | None = None) -> CameraTrack:
-    """Cameras of display frames (N, H, W, 3) uint8: static detection, else incremental SfM.
+                     name: str = "clip", work_dir: str | Path | None = None,
+                     surface: np.ndarray | None = None) -> CameraTrack:
+    """Cameras of display frames (N, H, W, 3) uint8: static detection (on the ``surface`` pixels, (N, H, W)
+    bool, when given: :func:`median_motion_px`), else incremental SfM.
 
     Raises :class:`ReconstructionError` (one line naming ``name``) when SfM registers fewer than
     ``min_registered_fraction`` of the frames with the settings and with each of their ``retry`` overrides
@@ -146,7 +163,7 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
     n, h, w, _ = frames.shape
     K = prior_intrinsics(w, h, fov_x_rad)
     t0 = time.perf_counter()
-    motion = median_motion_px(frames)
+    motion = median_motion_px(frames, surface=surface)
     if motion <= settings.static_motion_px:
         track = static_track(n, K)
         track.info = {"method": "static", "median_motion_px": motion, "registered": n, "frames": n,

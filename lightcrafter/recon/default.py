@@ -594,17 +594,18 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
     name = name or str(frames_dir)
     disp, u8 = read_video_frames(frames_dir, settings.exposure_ev)
     n, h, w, _ = disp.shape
+    model = est.load(estimator_path)
+    pred = est.predict(model, disp)
+    t_est = time.perf_counter() - t0
     if settings.camera == "static":
         from lightcrafter.recon.cameras import prior_intrinsics, static_track
 
         track = static_track(n, prior_intrinsics(w, h, np.radians(settings.fov_x_deg)))
         track.info = {"method": "static (given)", "registered": n, "frames": n}
-    else:
-        track = estimate_cameras(u8, np.radians(settings.fov_x_deg), SfMSettings(**settings.sfm), name=name)
-    t_cam = time.perf_counter() - t0
-    model = est.load(estimator_path)
-    pred = est.predict(model, disp)
-    t_est = time.perf_counter() - t0 - t_cam
+    else:  # static detection looks at the surface: a background at infinity turns with a rotating light
+        track = estimate_cameras(u8, np.radians(settings.fov_x_deg), SfMSettings(**settings.sfm), name=name,
+                                 surface=pred["mask"] > settings.mask_threshold)
+    t_cam = time.perf_counter() - t0 - t_est
     try:
         fits = depth_fits(track, pred["depth"], settings.min_points, settings.depth_fit)
     except ReconstructionError as exc:
