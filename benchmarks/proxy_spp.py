@@ -90,12 +90,18 @@ def ratios(r_points, c_points, levels) -> dict:
     return out
 
 
-def round_ratios(r_rounds, c_rounds, r_spp, c_spp, r_ref, c_ref, common: float, levels, curve) -> dict:
+def curve(spps, values, seconds) -> list[dict]:
+    """Points of a spp ladder: its PSNR values (the same images every round) and one set of seconds."""
+    return [{"setting": spp, "seconds": round(float(sec), 5), "value": round(v, 3)}
+            for spp, v, sec in zip(spps, values, seconds)]
+
+
+def round_ratios(r_spp, r_values, r_rounds, c_spp, c_values, c_rounds, common: float, levels) -> dict:
     """Per-round speed ratios (Cycles / R seconds at equal PSNR) at the common best PSNR and at ``levels``,
-    as the median and range over the interleaved rounds."""
+    as the median and range over the interleaved rounds (``*_rounds``: per round, the seconds per spp)."""
     per_round = []
-    for k in range(len(r_rounds)):
-        rp, cp = curve(r_rounds, r_spp, r_ref, k), curve(c_rounds, c_spp, c_ref, k)
+    for r_sec, c_sec in zip(r_rounds, c_rounds):
+        rp, cp = curve(r_spp, r_values, r_sec), curve(c_spp, c_values, c_sec)
         per_round.append({"common_best": ratios(rp, cp, [common])[f"{common:.1f}"], "levels": ratios(rp, cp, levels)})
     return {"at_common_best_db": round(common, 2),
             "ratio_at_common_best": median_range([pr["common_best"] for pr in per_round]),
@@ -144,18 +150,14 @@ def main() -> None:
                                           max_bounces=0, seed=7, repeats=1))
         print(f"round {k + 1}/{a.rounds}: R {sum(t for _, t in r_rounds[-1]):.2f} s, Cycles "
               f"{sum(t for _, t in c_rounds[-1]):.2f} s over the spp ladders", flush=True)
-
-    def curve(rounds, spps, reference, k=None):
-        """Points of round k (None: median seconds over rounds); the images are the same in every round."""
-        out = []
-        for j, spp in enumerate(spps):
-            sec = rounds[k][j][1] if k is not None else float(np.median([rd[j][1] for rd in rounds]))
-            out.append({"setting": spp, "seconds": round(sec, 5), "value": round(display_psnr_db(rounds[0][j][0],
-                                                                                                  reference), 3)})
-        return out
-
-    points, c_points, c_own = curve(r_rounds, a.spp, ref), curve(c_rounds, a.cycles_spp, ref), \
-        curve(c_rounds, a.cycles_spp, cref)
+    r_sec = [[t for _, t in rd] for rd in r_rounds]  # seconds per round and spp
+    c_sec = [[t for _, t in rd] for rd in c_rounds]
+    r_val = [display_psnr_db(img, ref) for img, _ in r_rounds[0]]  # seeded: the same images every round
+    c_val = [display_psnr_db(img, ref) for img, _ in c_rounds[0]]
+    c_own_val = [display_psnr_db(img, cref) for img, _ in c_rounds[0]]
+    points = curve(a.spp, r_val, np.median(r_sec, axis=0))
+    c_points = curve(a.cycles_spp, c_val, np.median(c_sec, axis=0))
+    c_own = curve(a.cycles_spp, c_own_val, np.median(c_sec, axis=0))
     for p in points:
         print(f"R       spp {p['setting']:5d}: {p['seconds']:8.4f} s  {p['value']:6.2f} dB", flush=True)
     for p, q in zip(c_points, c_own):
@@ -179,11 +181,11 @@ def main() -> None:
         "cycles_vs_r_reference_psnr_db": round(display_psnr_db(cref, ref), 3),
         "speed_ratio_at_equal_error": {
             "definition": "Cycles seconds / R seconds reaching the same display PSNR; each vs R's reference",
-            **round_ratios(r_rounds, c_rounds, a.spp, a.cycles_spp, ref, ref, common, levels, curve),
+            **round_ratios(a.spp, r_val, r_sec, a.cycles_spp, c_val, c_sec, common, levels),
         },
         "speed_ratio_at_equal_noise": {
             "definition": "as above, but each renderer against its own high-spp reference (noise only)",
-            **round_ratios(r_rounds, c_rounds, a.spp, a.cycles_spp, ref, cref, common_own, levels, curve),
+            **round_ratios(a.spp, r_val, r_sec, a.cycles_spp, c_own_val, c_sec, common_own, levels),
         },
         "rounds": a.rounds,
         "seconds_per_frame_at_chosen": next(p["seconds"] for p in points if p["setting"] == chosen),
