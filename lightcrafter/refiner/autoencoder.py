@@ -26,6 +26,7 @@ VAE's ``scaling_factor`` (0.7 for CogVideoX-5B).
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import torch
@@ -201,7 +202,8 @@ def round_trip_psnr_db(ae, video: torch.Tensor, pad_mode: str = "repeat_last") -
     from .data import to_display_frames
     from .frames import pad_to_4k1
 
-    device = next((t.device for t in [*ae.parameters(), *ae.buffers()]), torch.device("cpu"))
+    first = next(itertools.chain(ae.parameters(), ae.buffers()), None)
+    device = first.device if first is not None else torch.device("cpu")
     padded, n = pad_to_4k1(video[None], pad_mode)
     with torch.no_grad():
         rt = ae.decode(ae.encode(padded.to(device)))[0, :, :n].clamp(-1, 1).cpu()

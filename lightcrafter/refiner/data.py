@@ -9,6 +9,7 @@ workflow root), falling back to the manifest's folder.
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +33,7 @@ def require_pairs(dataset, pairs_path, split: str | None, task: str):
     """``dataset`` itself when it has a pair, else a one-line :class:`DataError` naming the manifest and the split:
     a benchmark of zero clips has no mean, so ``task`` (e.g. "refine") stops instead of writing an empty result."""
     if len(dataset) == 0:
-        counts: dict = {}
-        for r in read_jsonl(pairs_path):
-            counts[r.get("split")] = counts.get(r.get("split"), 0) + 1
+        counts = Counter(r.get("split") for r in read_jsonl(pairs_path))
         has = ", ".join(f"{k}: {v}" for k, v in sorted(counts.items(), key=str)) or "no pairs at all"
         raise DataError(f"{pairs_path}: no pairs with split == {split!r} to {task} (the manifest has {has}); pass "
                         "the split it has, or rebuild it with clips in that split")
