@@ -23,9 +23,9 @@ Static camera: when the typical motion of SIFT matches between consecutive frame
 of the per-pair median; keypoints on the G-buffer estimator's surface only, when Phi gives it, since a
 background at infinity turns with a rotating environment light) stays under ``static_motion_px`` pixels, the
 camera is taken as static and structure from motion is not run (it cannot: a pure rotation or a static camera
-gives no two-view geometry). All frames then get the identity pose. When SfM fails on a clip whose motion is under twice that threshold, the
-camera is taken as static too (little image motion and no two-view geometry); the clip's ``method``
-records ``static (fallback)``.
+gives no two-view geometry). All frames then get the identity pose. When SfM fails on a clip whose motion is
+under twice that threshold, the camera is taken as static too (little image motion and no two-view geometry);
+the clip's ``method`` records ``static (fallback)``.
 """
 
 from __future__ import annotations
