@@ -410,6 +410,56 @@ def test_a_camera_far_off_the_path_counts_as_unregistered():
     assert (drop_far_cameras(far, unreg) == (unreg & kept)).all()
 
 
+def test_a_frame_posed_against_a_wrong_part_of_the_model_counts_as_unregistered(monkeypatch):
+    """A study clip's SfM model put frames at depth scales 200-fold apart (the estimator's depth against the
+    points'), and Align gave its depth an AbsRel of 2.6: a frame whose own scale is more than
+    recon.sfm.max_depth_scale_ratio off the clip's median counts as unregistered; a consistent clip, and frames
+    with too few points to measure, keep theirs; the manifest counts the outliers and the spread."""
+    from lightcrafter.config.models import SfM
+    from lightcrafter.recon import cameras
+
+    rng = np.random.default_rng(0)
+    n, h, w = 9, 48, 64
+    K = cameras.intrinsics(w, h, 1.0)
+    pts = np.column_stack([rng.uniform(-1, 1, 200), rng.uniform(-0.7, 0.7, 200), rng.uniform(3, 6, 200)])
+    c2w = np.repeat(np.eye(4)[None], n, axis=0)
+    c2w[:, 0, 3] = np.linspace(-0.3, 0.3, n)  # a sideways path, OpenCV axes, looking along +z
+    depth = np.zeros((n, h, w))
+    obs = []
+    for i in range(n):
+        pc = pts - c2w[i, :3, 3]
+        uv = (pc @ K.T)[:, :2] / pc[:, 2:]
+        inside = (uv[:, 0] > 0) & (uv[:, 0] < w - 1) & (uv[:, 1] > 0) & (uv[:, 1] < h - 1)
+        obs.append((uv[inside], np.flatnonzero(inside)))
+        col, row = np.rint(uv[inside]).astype(int).T
+        depth[i] = 4.5
+        depth[i, row, col] = pc[inside, 2] * 0.5 * (1 + 0.05 * rng.standard_normal())  # estimator units: 2x off
+    track = cameras.CameraTrack(K=np.repeat(K[None], n, 0), c2w=c2w, registered=np.ones(n, bool), points=pts,
+                                observations=obs, static=False)
+    scales, off = cameras.depth_scale_outliers(track, depth, 10.0)
+    assert np.allclose(scales, 2.0, rtol=0.2) and not off.any()  # one scale over the clip: nothing dropped
+    bad = depth.copy()
+    bad[6] *= 200.0  # frame 6 posed 200x off the rest
+    scales, off = cameras.depth_scale_outliers(track, bad, 10.0)
+    assert np.flatnonzero(off).tolist() == [6]
+    few = cameras.CameraTrack(**{**track.__dict__, "observations": [o if i != 6 else (o[0][:3], o[1][:3])
+                                                                   for i, o in enumerate(obs)]})
+    scales, off = cameras.depth_scale_outliers(few, bad, 10.0)
+    assert np.isnan(scales[6]) and not off.any()  # 3 points are too few to measure: no verdict
+
+    got = cameras.accept_model(K, c2w, np.ones(n, bool), pts, obs, SfM(), "c", depth=bad)  # what _colmap returns
+    assert not got.registered[6] and got.registered.sum() == n - 1 and len(got.observations[6][1]) == 0
+    assert np.allclose(got.c2w[6], c2w[5]) or np.allclose(got.c2w[6], c2w[7])  # a neighbour's pose
+    assert got.info["depth_scale_outliers"] == 1 and got.info["depth_scale_spread"] > 100
+    kept = cameras.accept_model(K, c2w, np.ones(n, bool), pts, obs, SfM(max_depth_scale_ratio=None), "c", depth=bad)
+    assert kept.registered.all() and "depth_scale_outliers" not in kept.info  # null: off
+    worse = bad.copy()
+    worse[[1, 2, 3, 4]] *= 300.0  # frames 1-4 and 6 at 200-600x, the 4 others at 1x: 4 dropped, 5/9 < 60 %
+    with pytest.raises(cameras.ReconstructionError, match=r"^c: .*registered 5/9 frames .*4 at another depth scale"):
+        cameras.accept_model(K, c2w, np.ones(n, bool), pts, obs, SfM(), "c", depth=worse)
+    assert SfM(max_depth_scale_ratio=None).max_depth_scale_ratio is None
+
+
 def test_static_detection_looks_at_the_surface_not_a_background_turning_with_the_light():
     """A fixed camera over a static table whose background (the environment map at infinity) turns with a
     rotating light, as in a study clip that structure from motion then took for a moving camera: the surface
@@ -460,7 +510,7 @@ def test_sfm_retries_its_overrides_in_order_and_records_the_attempt_that_succeed
 
     seen = []
 
-    def fake_colmap(frames, K, s, name, tmp):
+    def fake_colmap(frames, K, s, name, tmp, depth=None):
         seen.append((s.upscale, s.init_min_tri_angle_deg))
         if s.init_min_tri_angle_deg > 5:
             raise cameras.ReconstructionError(f"{name}: structure from motion found no model")

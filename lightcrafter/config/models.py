@@ -213,6 +213,10 @@ class SfM(Section):
     init_min_tri_angle_deg: PositiveFloat = Field(16.0, description="COLMAP's smallest triangulation angle of the "
                                                   "initial image pair (degrees); short orbits need less than its 16")
     abs_pose_min_num_inliers: PositiveInt = Field(30, description="COLMAP's fewest 2D-3D inliers to register a frame")
+    max_depth_scale_ratio: Optional[PositiveFloat] = Field(
+        10.0, gt=1, description="a registered frame whose depth scale (its SfM points' depths over the estimator's at "
+        "their pixels, median) is more than this many times off the clip's median frame counts as unregistered "
+        "(posed against a wrong part of the model; recon.cameras.depth_scale_outliers); null = off")
     retry: list[dict[str, Union[int, float]]] = Field(
         [], description="when SfM rejects a clip (no model, or under min_registered_fraction), it is run again with "
         "each of these overrides of the keys above in turn (e.g. a smaller init_min_tri_angle_deg); the manifest "

@@ -17,7 +17,10 @@ Conventions
 Far cameras: structure from motion sometimes registers a frame with its centre far off the clip's path (in a
 study run, 3.6e3 and 1.9e8 times the median camera's distance from the path's median centre, where every other
 moving clip of the run stayed under 10x); such a frame is counted as unregistered
-(:func:`drop_far_cameras`, ``FAR_CAMERA_FACTOR``) and takes its nearest registered neighbour's pose.
+(:func:`drop_far_cameras`, ``FAR_CAMERA_FACTOR``) and takes its nearest registered neighbour's pose. So does a
+frame whose depth scale (its SfM points' depths over the G-buffer estimator's, when Phi gives them) is more than
+``recon.sfm.max_depth_scale_ratio`` times off the clip's median frame (:func:`depth_scale_outliers`): in the same
+study a clip's frames spread 200-fold, and its aligned depth was 2.6 times off (AbsRel).
 
 Static camera: when the typical motion of SIFT matches between consecutive frames (median over pairs
 of the per-pair median; keypoints on the G-buffer estimator's surface only, when Phi gives it, since a
@@ -68,6 +71,7 @@ class CameraTrack:
 
 
 FAR_CAMERA_FACTOR = 50.0  # far off the path: > 50x the median distance (study: outliers 3.6e3x, others < 10x)
+DEPTH_SCALE_MIN_POINTS = 8  # SfM points a frame needs for its own depth scale (as recon.min_points' default)
 
 
 def drop_far_cameras(c2w: np.ndarray, registered: np.ndarray, factor: float = FAR_CAMERA_FACTOR) -> np.ndarray:
@@ -84,6 +88,35 @@ def drop_far_cameras(c2w: np.ndarray, registered: np.ndarray, factor: float = FA
         return reg
     reg &= np.isfinite(dist) & (dist <= factor * typical)
     return reg
+
+
+def depth_scale_outliers(track: "CameraTrack", depth_pred: np.ndarray, factor: float,
+                         min_points: int = DEPTH_SCALE_MIN_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """Registered frames whose own depth scale is more than ``factor`` times off the clip's.
+
+    A frame's depth scale is the median, over its observed SfM points, of the point's z-depth in the frame's camera
+    (reconstruction units) over the estimator's depth ``depth_pred`` (N, H, W) at the point's pixel. The estimator
+    keeps about one scale over a clip and a consistent SfM model keeps one too, so the scales of a clip's frames
+    stay close to their median; a frame posed against points of a wrong part of the model departs from it (a
+    study clip's frames spread 200-fold). Returns (scales (N,), NaN where a frame has fewer than ``min_points``
+    points or is unregistered; outliers (N,) bool, frames with |log(scale / median)| > log(factor))."""
+    n, h, w = depth_pred.shape
+    scales = np.full(n, np.nan)
+    for i in np.flatnonzero(track.registered):
+        uv, z = point_depths(track, i)
+        if len(z) < min_points:
+            continue
+        col = np.clip(np.rint(uv[:, 0]).astype(int), 0, w - 1)
+        row = np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
+        d = depth_pred[i, row, col]
+        ok = (z > 0) & np.isfinite(d) & (d > 0)
+        if ok.sum() >= min_points:
+            scales[i] = float(np.median(z[ok] / d[ok]))
+    have = np.isfinite(scales)
+    if have.sum() < 3:
+        return scales, np.zeros(n, bool)
+    off = np.abs(np.log(np.where(have, scales, 1.0) / np.median(scales[have])))
+    return scales, have & (off > np.log(factor))
 
 
 def prior_intrinsics(width: int, height: int, fov_x_rad: float) -> np.ndarray:
@@ -147,9 +180,12 @@ def static_track(n: int, K: np.ndarray) -> CameraTrack:
 
 def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings = SfMSettings(),
                      name: str = "clip", work_dir: str | Path | None = None,
-                     surface: np.ndarray | None = None) -> CameraTrack:
+                     surface: np.ndarray | None = None, depth: np.ndarray | None = None) -> CameraTrack:
     """Cameras of display frames (N, H, W, 3) uint8: static detection (on the ``surface`` pixels, (N, H, W)
     bool, when given: :func:`median_motion_px`), else incremental SfM.
+
+    ``depth``: the estimator's depth (N, H, W), any one unit; with ``max_depth_scale_ratio`` a frame whose depth
+    scale to the SfM points is that many times off the clip's counts as unregistered (:func:`depth_scale_outliers`).
 
     Raises :class:`ReconstructionError` (one line naming ``name``) when SfM registers fewer than
     ``min_registered_fraction`` of the frames with the settings and with each of their ``retry`` overrides
@@ -175,7 +211,7 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
     for attempt, s in enumerate(settings.attempts()):
         tmp = Path(tempfile.mkdtemp(prefix="lc_sfm_", dir=work_dir))
         try:
-            track = _colmap(frames, K, s, name, tmp)
+            track = _colmap(frames, K, s, name, tmp, depth)
             track.info["sfm_attempt"] = attempt
             break
         except ReconstructionError as exc:
@@ -195,7 +231,8 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
     return track
 
 
-def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: Path) -> CameraTrack:
+def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: Path,
+            depth: np.ndarray | None = None) -> CameraTrack:
     import imageio.v3 as iio
     import pycolmap
 
@@ -272,25 +309,54 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
                 uv.append((np.asarray(p2d.xy, np.float64)) / up - 0.5)
                 ids.append(pid_index[p2d.point3D_id])
         observations[i] = (np.asarray(uv).reshape(-1, 2), np.asarray(ids, np.int64))
+    return accept_model(K, c2w, registered, points, observations, s, name, depth,
+                        {"models": len(models), "upscale": up,
+                         "matching": "exhaustive" if n <= s.exhaustive_max_frames
+                         else f"sequential({s.sequential_overlap})"})
+
+
+def accept_model(K: np.ndarray, c2w: np.ndarray, registered: np.ndarray, points: np.ndarray,
+                 observations: list[tuple[np.ndarray, np.ndarray]], s: SfMSettings, name: str,
+                 depth: np.ndarray | None = None, info: dict | None = None) -> CameraTrack:
+    """The track of an SfM model (K (3, 3) px; c2w (N, 4, 4), OpenCV axes, NaN where unregistered; points;
+    per-frame observations): frames far off the path (:func:`drop_far_cameras`) and, with ``depth`` and
+    ``s.max_depth_scale_ratio``, frames at another depth scale (:func:`depth_scale_outliers`) count as
+    unregistered (their observations dropped); fewer than ``s.min_registered_fraction`` registered frames is a
+    :class:`ReconstructionError` naming ``name``; an unregistered frame takes its nearest registered neighbour's
+    pose. ``info`` is added to the track's."""
+    n = len(c2w)
+    c2w, observations = np.array(c2w, np.float64), list(observations)
+    registered = np.asarray(registered, bool)
     kept = drop_far_cameras(c2w, registered)
     far = int(registered.sum() - kept.sum())
     for i in np.flatnonzero(registered & ~kept):  # its SfM points were seen from a wrong pose: as unregistered
         observations[i] = (np.zeros((0, 2)), np.zeros(0, np.int64))
     registered = kept
+    Ks = np.repeat(np.asarray(K, np.float64)[None], n, 0)
+    scale_info = {}
+    if depth is not None and s.max_depth_scale_ratio is not None:
+        scales, off = depth_scale_outliers(CameraTrack(K=Ks, c2w=c2w, registered=registered, points=points,
+                                                       observations=observations, static=False),
+                                           np.asarray(depth), float(s.max_depth_scale_ratio))
+        for i in np.flatnonzero(off):  # posed against a wrong part of the model: as unregistered
+            observations[i] = (np.zeros((0, 2)), np.zeros(0, np.int64))
+        registered = registered & ~off
+        have = scales[np.isfinite(scales)]
+        scale_info = {"depth_scale_outliers": int(off.sum()),
+                      "depth_scale_spread": round(float(have.max() / have.min()), 4) if len(have) else None}
     n_reg = int(registered.sum())
     if n_reg < max(3, s.min_registered_fraction * n):
+        dropped = f"; {scale_info['depth_scale_outliers']} at another depth scale" \
+            if scale_info.get("depth_scale_outliers") else ""
         raise ReconstructionError(f"{name}: structure from motion registered {n_reg}/{n} frames (needs "
-                                  f"{s.min_registered_fraction:.0%}); too little texture or parallax")
+                                  f"{s.min_registered_fraction:.0%}{dropped}); too little texture or parallax")
     reg = np.flatnonzero(registered)
     for i in np.flatnonzero(~registered):  # nearest registered neighbour's pose
         c2w[i] = c2w[reg[np.argmin(np.abs(reg - i))]]
-    return CameraTrack(K=np.repeat(K[None], n, 0), c2w=c2w, registered=registered, points=points,
-                       observations=observations, static=False,
-                       info={"method": "colmap", "registered": n_reg, "frames": n, "points": int(len(points)),
-                             "far_cameras_dropped": far,
-                             "models": len(models), "upscale": up,
-                             "matching": "exhaustive" if n <= s.exhaustive_max_frames
-                             else f"sequential({s.sequential_overlap})"})
+    return CameraTrack(K=Ks, c2w=c2w, registered=registered, points=points, observations=observations,
+                       static=False, info={"method": "colmap", "registered": n_reg, "frames": n,
+                                           "points": int(len(points)), "far_cameras_dropped": far, **scale_info,
+                                           **(info or {})})
 
 
 def point_depths(track: CameraTrack, i: int) -> tuple[np.ndarray, np.ndarray]:

@@ -604,7 +604,7 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
         track.info = {"method": "static (given)", "registered": n, "frames": n}
     else:  # static detection looks at the surface: a background at infinity turns with a rotating light
         track = estimate_cameras(u8, np.radians(settings.fov_x_deg), SfMSettings(**settings.sfm), name=name,
-                                 surface=pred["mask"] > settings.mask_threshold)
+                                 surface=pred["mask"] > settings.mask_threshold, depth=pred["depth"])
     t_cam = time.perf_counter() - t0 - t_est
     try:
         fits = depth_fits(track, pred["depth"], settings.min_points, settings.depth_fit)
