@@ -104,25 +104,43 @@ class DCTPatchAutoencoder(nn.Module):
 
     def encode_raw(self, video: torch.Tensor) -> torch.Tensor:
         self._check(video)
-        b, _, n, hh, ww = video.shape
         video = torch.einsum("oc,bcnhw->bonhw", self.colour.to(video.dtype), video)
-        x = torch.cat([video[:, :, :1].expand(-1, -1, BLOCK_T, -1, -1), video[:, :, 1:]], dim=2)
-        f, h, w = x.shape[2] // BLOCK_T, hh // BLOCK_S, ww // BLOCK_S
+        return self._project(torch.cat([video[:, :, :1].expand(-1, -1, BLOCK_T, -1, -1), video[:, :, 1:]], dim=2))
+
+    def encode_blocks(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, 3, 4f, H, W) -> un-normalised latent (B, f, C, h, w): every 4 frames one latent frame, none causal
+        (:meth:`encode_raw` is this after repeating frame 0 to a block of its own)."""
+        return self._project(torch.einsum("oc,bcnhw->bonhw", self.colour.to(x.dtype), x))
+
+    def _project(self, x: torch.Tensor) -> torch.Tensor:
+        """Opponent-colour blocks (B, 3, 4f, H, W) -> their kept DCT coefficients (B, f, C, h, w)."""
+        b, _, n, hh, ww = x.shape
+        f, h, w = n // BLOCK_T, hh // BLOCK_S, ww // BLOCK_S
         x = x.reshape(b, 3, f, BLOCK_T, h, BLOCK_S, w, BLOCK_S).permute(0, 2, 1, 4, 6, 3, 5, 7)
         coef = x.reshape(b, f, 3, h, w, 256) @ self.basis.to(x.dtype)  # (b, f, 3, h, w, kmax)
         coef = coef.permute(0, 1, 2, 5, 3, 4).reshape(b, f, 3 * self.kmax, h, w)
         return coef[:, :, self.select]
 
     def decode_raw(self, lat: torch.Tensor) -> torch.Tensor:
+        x = self._unproject(lat)
+        first = x[:, :, :BLOCK_T].mean(dim=2, keepdim=True)  # least-squares estimate of frame 0
+        x = torch.cat([first, x[:, :, BLOCK_T:]], dim=2)
+        return torch.einsum("oc,bonhw->bcnhw", self.colour.to(x.dtype), x)
+
+    def decode_blocks(self, lat: torch.Tensor) -> torch.Tensor:
+        """Un-normalised latent (B, f, C, h, w) -> (B, 3, 4f, H, W): each latent frame's block of 4 frames, latent
+        frame 0 too (the transpose of :meth:`encode_blocks`)."""
+        x = self._unproject(lat)
+        return torch.einsum("oc,bonhw->bcnhw", self.colour.to(x.dtype), x)
+
+    def _unproject(self, lat: torch.Tensor) -> torch.Tensor:
+        """Kept DCT coefficients (B, f, C, h, w) -> opponent-colour blocks (B, 3, 4f, H, W)."""
         b, f, c, h, w = lat.shape
         full = lat.new_zeros(b, f, 3 * self.kmax, h, w)
         full[:, :, self.select] = lat
         coef = full.reshape(b, f, 3, self.kmax, h, w).permute(0, 1, 2, 4, 5, 3)
         x = (coef @ self.basis.T.to(lat.dtype)).reshape(b, f, 3, h, w, BLOCK_T, BLOCK_S, BLOCK_S)
-        x = x.permute(0, 2, 1, 5, 3, 6, 4, 7).reshape(b, 3, f * BLOCK_T, h * BLOCK_S, w * BLOCK_S)
-        first = x[:, :, :BLOCK_T].mean(dim=2, keepdim=True)  # least-squares estimate of frame 0
-        x = torch.cat([first, x[:, :, BLOCK_T:]], dim=2)
-        return torch.einsum("oc,bonhw->bcnhw", self.colour.to(x.dtype), x)
+        return x.permute(0, 2, 1, 5, 3, 6, 4, 7).reshape(b, 3, f * BLOCK_T, h * BLOCK_S, w * BLOCK_S)
 
     def _norm_shape(self, t: torch.Tensor) -> torch.Tensor:
         return t.view(1, 1, -1, 1, 1)
