@@ -124,11 +124,16 @@ class PixelAnchor(nn.Module):
     colour map alone), then encoded again. Every parameter
     starts at zero, so the map is the identity at initialisation (for latents of kept frequencies). Unlike
     :class:`LatentAffine` on DCT coefficients it is the same at every pixel position: no 8-pixel block grid.
+    Every latent frame is decoded as its block of 4 frames and encoded back as one (``decode_blocks``): the map
+    acts on each frame alone, so it commutes with the blocks, and a window of the temporal tiling that starts past
+    the clip's latent frame 0 keeps its first block's 4 frames (decoded as a causal frame 0, as ``decode`` would,
+    they were averaged into one, and the tiled anchor jumped at every 4-frame block;
+    ``tests/test_refiner_small_scale.py``).
     The autoencoder is held by reference (not a submodule: its buffers stay out of the anchor's weights)."""
 
     def __init__(self, ae, radius: int):
         super().__init__()
-        if not hasattr(ae, "decode_raw"):
+        if not hasattr(ae, "decode_blocks"):
             raise ValueError("model.anchor_kernel_px needs the tiny DCT autoencoder (kind=tiny)")
         self.radius = int(radius)
         k = 2 * self.radius + 1
@@ -150,7 +155,7 @@ class PixelAnchor(nn.Module):
 
         ae = self._ae
         shift, scale = ae.shift.view(1, 1, -1, 1, 1), ae.scale.view(1, 1, -1, 1, 1)
-        x = ae.decode_raw(a * scale + shift)  # (B, 3, N, H, W)
+        x = ae.decode_blocks(a * scale + shift)  # (B, 3, 4F, H, W)
         x = torch.einsum("oc,bcnhw->bonhw", torch.eye(3, device=x.device) + self.colour, x) \
             + self.bias.view(1, 3, 1, 1, 1)
         b, c, n, h, w = x.shape
@@ -160,7 +165,7 @@ class PixelAnchor(nn.Module):
         y = x.permute(0, 2, 1, 3, 4).reshape(b * n, c, h, w)
         y = F.conv2d(F.pad(y, (r, r, r, r), mode="replicate"), ident + self.kernel, groups=3)
         x = y.reshape(b, n, c, h, w).permute(0, 2, 1, 3, 4)
-        return (ae.encode_raw(x) - shift) / scale
+        return (ae.encode_blocks(x) - shift) / scale
 
 
 def grid_crop_region(grid_hw: tuple[int, int], base_w: int, base_h: int):
