@@ -410,11 +410,12 @@ def test_a_camera_far_off_the_path_counts_as_unregistered():
     assert (drop_far_cameras(far, unreg) == (unreg & kept)).all()
 
 
-def test_a_frame_posed_against_a_wrong_part_of_the_model_counts_as_unregistered(monkeypatch):
-    """A study clip's SfM model put frames at depth scales 200-fold apart (the estimator's depth against the
-    points'), and Align gave its depth an AbsRel of 2.6: a frame whose own scale is more than
-    recon.sfm.max_depth_scale_ratio off the clip's median counts as unregistered; a consistent clip, and frames
-    with too few points to measure, keep theirs; the manifest counts the outliers and the spread."""
+def test_a_frame_posed_against_a_wrong_part_of_the_model_counts_as_unregistered():
+    """A frame whose depth scale (its SfM points' depths over the estimator's) is more than
+    recon.sfm.max_depth_scale_ratio off the clip's median frame was posed against a wrong part of the model: it
+    counts as unregistered and takes a neighbour's pose; a consistent clip, and frames with too few points to
+    measure, keep theirs; too few frames left is the usual one-line error; the manifest counts the outliers and
+    the spread."""
     from lightcrafter.config.models import SfM
     from lightcrafter.recon import cameras
 
