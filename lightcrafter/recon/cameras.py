@@ -361,6 +361,12 @@ def accept_model(K: np.ndarray, c2w: np.ndarray, registered: np.ndarray, points:
                                            **(info or {})})
 
 
+def pixel_indices(uv: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row, col) integer indices of the pixels containing OpenCV pixel-centre positions ``uv`` (M, 2),
+    clipped to an (h, w) image."""
+    return (np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1), np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1))
+
+
 def point_depths(track: CameraTrack, i: int) -> tuple[np.ndarray, np.ndarray]:
     """(uv_px (M,2), z (M,)) of frame i's observed SfM points: pixel positions and z-depths in the
     reconstruction's units (camera OpenCV z axis)."""

@@ -40,7 +40,8 @@ import numpy as np
 
 from lightcrafter import clip as clipmod
 from lightcrafter import io
-from lightcrafter.recon.cameras import CameraTrack, ReconstructionError, SfMSettings, estimate_cameras, point_depths
+from lightcrafter.recon.cameras import (CameraTrack, ReconstructionError, SfMSettings, estimate_cameras, pixel_indices,
+                                       point_depths)
 
 
 GROUND_NORMALS = ("depth", "predicted", "depth_sfm")  # recon.ground_plane_normal, besides auto
@@ -137,12 +138,6 @@ def read_video_frames(frames_dir: str | Path, exposure_ev: float = 0.0) -> tuple
 
 
 DEPTH_FIT_MODES = ("scale", "affine", "planar")
-
-
-def pixel_indices(uv: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """(row, col) integer indices of the pixels containing OpenCV pixel-centre positions ``uv`` (M, 2),
-    clipped to an (h, w) image."""
-    return (np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1), np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1))
 
 
 def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode: str = "scale") -> np.ndarray:
