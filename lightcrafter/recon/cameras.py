@@ -73,7 +73,7 @@ class CameraTrack:
 
 
 FAR_CAMERA_FACTOR = 50.0  # far off the path: > 50x the median distance (study: outliers 3.6e3x, others < 10x)
-DEPTH_SCALE_MIN_POINTS = 8  # SfM points a frame needs for its own depth scale (as recon.min_points' default)
+DEPTH_SCALE_MIN_POINTS = 8  # SfM points a frame needs for its own depth scale (also recon.default's min_points)
 
 
 def drop_far_cameras(c2w: np.ndarray, registered: np.ndarray, factor: float = FAR_CAMERA_FACTOR) -> np.ndarray:
@@ -102,18 +102,12 @@ def depth_scale_outliers(track: "CameraTrack", depth_pred: np.ndarray, factor: f
     stay close to their median (the default's moving clips: within 1.37x); a frame posed against points of a wrong
     part of the model departs from it. Returns (scales (N,), NaN where a frame has fewer than ``min_points``
     points or is unregistered; outliers (N,) bool, frames with |log(scale / median)| > log(factor))."""
-    n, h, w = depth_pred.shape
+    n, _, _ = depth_pred.shape
     scales = np.full(n, np.nan)
     for i in np.flatnonzero(track.registered):
-        uv, z = point_depths(track, i)
-        if len(z) < min_points:
-            continue
-        col = np.clip(np.rint(uv[:, 0]).astype(int), 0, w - 1)
-        row = np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
-        d = depth_pred[i, row, col]
-        ok = (z > 0) & np.isfinite(d) & (d > 0)
-        if ok.sum() >= min_points:
-            scales[i] = float(np.median(z[ok] / d[ok]))
+        _, z, d = observed_depths(track, depth_pred, i)
+        if len(z) >= min_points:
+            scales[i] = float(np.median(z / d))
     have = np.isfinite(scales)
     if have.sum() < 3:
         return scales, np.zeros(n, bool)
@@ -365,6 +359,17 @@ def pixel_indices(uv: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarra
     """(row, col) integer indices of the pixels containing OpenCV pixel-centre positions ``uv`` (M, 2),
     clipped to an (h, w) image."""
     return (np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1), np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1))
+
+
+def observed_depths(track: CameraTrack, depth_pred: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(uv_px (M, 2), z (M,), d (M,)) of frame i's observed SfM points where both depths are positive and finite:
+    pixel positions, z-depths in the reconstruction's units (:func:`point_depths`) and the predicted depth
+    ``depth_pred`` (N, H, W) at their pixels."""
+    uv, z = point_depths(track, i)
+    row, col = pixel_indices(uv, *depth_pred.shape[1:])
+    d = depth_pred[i, row, col]
+    ok = (z > 0) & np.isfinite(d) & (d > 0)
+    return uv[ok], z[ok], d[ok]
 
 
 def point_depths(track: CameraTrack, i: int) -> tuple[np.ndarray, np.ndarray]:

@@ -40,8 +40,8 @@ import numpy as np
 
 from lightcrafter import clip as clipmod
 from lightcrafter import io
-from lightcrafter.recon.cameras import (CameraTrack, ReconstructionError, SfMSettings, estimate_cameras, pixel_indices,
-                                       point_depths)
+from lightcrafter.recon.cameras import (DEPTH_SCALE_MIN_POINTS, CameraTrack, ReconstructionError, SfMSettings,
+                                       estimate_cameras, observed_depths, pixel_indices)
 
 
 GROUND_NORMALS = ("depth", "predicted", "depth_sfm")  # recon.ground_plane_normal, besides auto
@@ -75,7 +75,7 @@ class DefaultSettings:
     camera: str = "auto"
     normals: str = "predicted"
     depth_fit: str = "scale"
-    min_points: int = 8
+    min_points: int = DEPTH_SCALE_MIN_POINTS
     mask_threshold: float = 0.5
     mask_refine: str = "none"
     max_hole_fraction: float = 0.0
@@ -161,27 +161,22 @@ def depth_fits(track: CameraTrack, depth_pred: np.ndarray, min_points: int, mode
     """
     if mode not in DEPTH_FIT_MODES:
         raise ValueError(f"recon.depth_fit={mode!r}: use one of {list(DEPTH_FIT_MODES)}")
-    n, h, w = depth_pred.shape
+    n, _, _ = depth_pred.shape
     if track.static:
         return np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
     fits = np.full((n, 4), np.nan)
     need = {"scale": 1, "affine": 2, "planar": 4}[mode] * min_points
     for i in range(n):
-        uv, z = point_depths(track, i)
+        uv, z, dp = observed_depths(track, depth_pred, i)
         if len(z) < min_points:
             continue
-        row, col = pixel_indices(uv, h, w)
-        dp = depth_pred[i, row, col]
-        ok = (z > 0) & np.isfinite(dp) & (dp > 0)
-        if ok.sum() < min_points:
-            continue
-        x, y = 1.0 / dp[ok], 1.0 / z[ok]
+        x, y = 1.0 / dp, 1.0 / z
         fit = np.array([np.median(y / x), 0.0, 0.0, 0.0])
-        if mode != "scale" and ok.sum() >= need and np.ptp(x) > 0:
+        if mode != "scale" and len(z) >= need and np.ptp(x) > 0:
             cols = [x, np.ones_like(x)]
             if mode == "planar":  # the points' normalised camera coordinates
                 K = np.asarray(track.K[i], np.float64)
-                cols += [(uv[ok, 0] - K[0, 2]) / K[0, 0], (uv[ok, 1] - K[1, 2]) / K[1, 1]]
+                cols += [(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1]]
             A_all = np.stack(cols, 1)
             keep = np.ones(len(x), bool)
             for _ in range(3):  # least squares with residual trimming (robust to mismatched points)
