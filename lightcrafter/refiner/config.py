@@ -156,6 +156,11 @@ class RefinerTrainSettings(_Section):
                         "with probability 1/2")
     anchor_lr: Optional[PositiveFloat] = Field(None, description="AdamW learning rate of the anchor's affine map "
                                                "(no weight decay); null = train.lr")
+    anchor_loss_weight: NonNegativeFloat = Field(
+        0.0, description="weight of a second loss on the learned anchor alone: the mean squared error of the "
+        "anchor's map of the proxy latent against the target latent (latent units, beside the v loss). Trained "
+        "only through the sum anchor + correction, the anchor drifts off as the transformer learns, while "
+        "selection offers it alone (select.residual_scales 0); 0 = off (the paper has no learned anchor)")
     checkpoint_every: PositiveInt = Field(50, description="optimizer steps between checkpoints")
     log_every: PositiveInt = Field(1, description="optimizer steps between log lines")
 

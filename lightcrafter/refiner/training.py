@@ -109,6 +109,15 @@ def training_loss(model: Refiner, sched, target_lat: torch.Tensor, proxy_lat: to
     return torch.mean((v_pred - v_target) ** 2)
 
 
+def anchor_loss(model: Refiner, target_lat: torch.Tensor, proxy_lat: torch.Tensor) -> torch.Tensor:
+    """MSE between the learned anchor's map of the proxy latent and the target latent (``train.anchor_loss_weight``):
+    what the anchor alone (``infer.residual_scale`` 0) would predict, so it stays a prediction of its own while the
+    transformer learns the rest. Zero for a model without a learned anchor."""
+    if getattr(model, "anchor_map", None) is None:
+        return target_lat.new_zeros(())
+    return torch.mean((model.anchor_map(proxy_lat) - target_lat) ** 2)
+
+
 def regression_x0(model: Refiner, proxy_lat: torch.Tensor) -> torch.Tensor:
     """One-step regressor: x0 estimate of the network with the proxy latent in both inputs."""
     t = torch.full((proxy_lat.shape[0],), REGRESSOR_TIMESTEP, dtype=torch.long, device=proxy_lat.device)
@@ -364,6 +373,8 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
                         t = torch.randint(t_lo, t_hi + 1, (1,), generator=gen)
                     noise = torch.randn(zp.shape, generator=gen).to(dev)
                     loss = training_loss(model, sched, tgt[:, s:e].float(), zp, t.to(dev), noise, anchor=zp_full)
+                    if tr["anchor_loss_weight"]:
+                        loss = loss + tr["anchor_loss_weight"] * anchor_loss(model, tgt[:, s:e].float(), zp_full)
                 acc.backward(loss)
                 if acc.sync_gradients:
                     if acc.num_processes > 1 and model.anchor_map is not None:  # outside DDP: average by hand
