@@ -471,16 +471,16 @@ def test_block_ratio_measures_an_added_grid_against_the_proxy():
 
 
 def _tag_outputs_with_their_residual_scale(fitmod, monkeypatch):
-    """Selection's refined clips carry the residual scale they were made with (``out.residual``), so a test can
-    fake a metric per kind of candidate."""
+    """Selection's refined clips carry the residual scale and correction blur they were made with (``out.residual``,
+    ``out.blur``), so a test can fake a metric per kind of candidate."""
     real_refine_fn = fitmod.refine_fn
 
-    def tagged(model, cfg, strength, guidance_scale, num_steps=None, residual_scale=None):
-        fn = real_refine_fn(model, cfg, strength, guidance_scale, num_steps, residual_scale)
+    def tagged(model, cfg, strength, guidance_scale, num_steps=None, residual_scale=None, correction_blur_px=None):
+        fn = real_refine_fn(model, cfg, strength, guidance_scale, num_steps, residual_scale, correction_blur_px)
 
         def run(item):
             out = fn(item)
-            out.residual = residual_scale
+            out.residual, out.blur = residual_scale, correction_blur_px
             return out
         return run
 
@@ -576,3 +576,58 @@ def test_anchor_loss_trains_the_anchor_alone_to_predict_the_target(tmp_path):
 
     without, with_ = anchor_error(0.0, tmp_path / "off"), anchor_error(1.0, tmp_path / "on")
     assert with_ < 0.85 * without, (with_, without)  # measured 0.170 against 0.225 (proxy itself 0.83)
+
+
+def test_blur_correction_removes_the_token_grid_and_keeps_the_anchor():
+    """infer.correction_blur_px: the refined clip's difference from the anchor is blurred. A correction made of a
+    smooth shading change and a 16-pixel grid keeps the shading and loses the grid; the anchor's own detail (a
+    sharp checker) is untouched; sigma 0 returns the refined clip as it is."""
+    from lightcrafter.evaluation import blockiness
+    from lightcrafter.refiner.data import to_display_frames
+    from lightcrafter.refiner.sampler import blur_correction
+
+    h, w = 64, 96
+    yy, xx = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    checker = (((yy // 3) + (xx // 3)) % 2).float() * 0.6 - 0.3  # the anchor's detail: 3-px squares
+    anchor = checker.expand(1, 3, 5, h, w).clone()
+    shading = 0.2 * xx.float() / w
+    grid = 0.1 * ((xx % 16 == 0) | (yy % 16 == 0)).float()  # the token grid
+    refined = anchor + (shading + grid).expand(1, 3, 5, h, w)
+    assert torch.equal(blur_correction(refined, anchor, 0.0), refined)
+    out = blur_correction(refined, anchor, 4.0)
+    inner = (slice(None), slice(None), slice(None), slice(16, -16), slice(16, -16))  # away from the frame's edges
+    assert torch.allclose(out[inner] - anchor[inner], shading.expand(1, 3, 5, h, w)[inner] + 0.1 * 7 / 64, atol=0.02)
+    grid_of = {name: blockiness(to_display_frames(v[0] - anchor[0]), 16).value for name, v in
+               (("refined", refined), ("blurred", out))}
+    assert grid_of["refined"] > 3.0 and grid_of["blurred"] < 1.2, grid_of
+    assert not torch.isfinite(blur_correction(refined, anchor, 1e-6)).logical_not().any()
+
+
+def test_selection_chooses_the_correction_blur_and_inference_applies_it(tmp_path, monkeypatch):
+    """select.correction_blurs_px: every candidate with the transformer's correction is scored at each blur, the
+    anchor alone once; the chosen blur is stored in model.pt's infer section and the refiner it loads applies it."""
+    from lightcrafter.refiner import fit as fitmod
+    from lightcrafter.refiner import load_model, refine_video
+    from lightcrafter.refiner.sampler import anchor_video, blur_correction
+
+    _tag_outputs_with_their_residual_scale(fitmod, monkeypatch)
+    monkeypatch.setattr(fitmod, "block_ratio", lambda out, proxy: 1.0 if out.residual and out.blur else 2.0)
+    pairs = _toy_manifest(tmp_path, ["s0", "s1"])
+    cfg = resolve_config({**SMALL, "train": {"max_steps": 2, "grad_accum": 1}, "infer": {"num_steps": 4},
+                          "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0],
+                                     "residual_scales": [0.0, 1.0], "correction_blurs_px": [0.0, 3.0],
+                                     "max_block_ratio": 1.1},
+                          "baselines": {"regressor_steps": 0, "affine_colour": False}})
+    res = fitmod.fit_refiner(cfg, pairs, tmp_path / "m", progress=False)["selection"]
+    rows = {(r["residual_scale"], r["correction_blur_px"]): r["admissible"] for r in res["table"]}
+    assert rows == {(1.0, 0.0): False, (1.0, 3.0): True, (0.0, 0.0): False}
+    assert (res["chosen"]["residual_scale"], res["chosen"]["correction_blur_px"]) == (1.0, 3.0)
+    model = load_model(tmp_path / "m" / "model.pt", device="cpu")
+    assert (model.cfg["infer"]["residual_scale"], model.cfg["infer"]["correction_blur_px"]) == (1.0, 3.0)
+    item = next(iter(fitmod.PairsDataset(pairs, "train")))
+    got = refine_video(model, item["proxy"][None], model.cfg, generator=torch.Generator().manual_seed(0))
+    raw = refine_video(model, item["proxy"][None], model.cfg, generator=torch.Generator().manual_seed(0),
+                       correction_blur_px=0.0)
+    anchor = anchor_video(model, model.ae.encode(item["proxy"][None])).clamp(-1, 1)
+    assert torch.allclose(got, blur_correction(raw, anchor, 3.0).clamp(-1, 1), atol=1e-5)
+    assert not torch.allclose(got, raw, atol=1e-3)

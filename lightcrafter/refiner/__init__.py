@@ -24,9 +24,10 @@ config key (the ``paper`` preset keeps the paper's values):
 * ``model.proxy_anchor``: the network predicts a correction of the proxy, zero at initialisation,
   so an untrained model returns the proxy (model.py); the loss stays the v-MSE;
 * ``train.timesteps: sampler_range``: train on the timesteps sampling visits;
-* ``select.*``: checkpoint, strength, guidance and ``infer.residual_scale`` (the weight of the
-  transformer's correction on the learned anchor; 0 = the anchor map alone) chosen on validation
-  scenes carved out of the train split (never test); ``baselines.*``: a one-step regressor with the same network, and an affine
+* ``select.*``: checkpoint, strength, guidance, ``infer.residual_scale`` (the weight of the
+  transformer's correction on the learned anchor; 0 = the anchor map alone) and
+  ``infer.correction_blur_px`` (a Gaussian on that correction, which loses its token grid) chosen on
+  validation scenes carved out of the train split (never test); ``baselines.*``: a one-step regressor with the same network, and an affine
   colour fit, trained on the same pairs and evaluated beside the refiner;
 * ``infer.num_samples``: the refined video is the mean of several samples (a posterior-mean
   estimate, which PSNR rewards); ``model.ae_normalisation``, ``train.hflip``: latent scaling and

@@ -177,6 +177,12 @@ class RefinerInferSettings(_Section):
     residual_scale: float = Field(
         1.0, ge=0, le=1, description="weight in [0, 1] of the transformer's correction on top of the proxy anchor "
         "(0 = anchor alone, no transformer call); ignored without an anchor")
+    correction_blur_px: NonNegativeFloat = Field(
+        0.0, description="sigma in pixels of a Gaussian applied, frame by frame in display space, to the refined "
+        "clip's difference from the learned anchor's output (the transformer's correction; "
+        "lightcrafter.refiner.sampler.blur_correction): the correction keeps its shading and colour and loses the "
+        "tiny preset's 16-pixel token grid. 0 = off; ignored without an anchor. Chosen on validation when "
+        "select.val_scenes > 0 (select.correction_blurs_px)")
     num_samples: PositiveInt = Field(
         1, description="the refined video is the pixel-wise mean of this many samples drawn with successive noise "
         "from the run's generator (a posterior-mean estimate, which PSNR/SSIM reward); 1 = a single sample (paper)")
@@ -223,6 +229,9 @@ class RefinerSelectSettings(_Section):
                                                     "infer.guidance_scale values")
     residual_scales: list[float] = Field([1.0], min_length=1, description="candidate infer.residual_scale values "
                                          "(0 = the learned anchor alone; only with a proxy anchor)")
+    correction_blurs_px: list[NonNegativeFloat] = Field(
+        [0.0], min_length=1, description="candidate infer.correction_blur_px values (0 = the correction as the "
+        "transformer made it; only with a proxy anchor and a residual scale above 0)")
     max_block_ratio: Optional[PositiveFloat] = Field(
         None, description="candidates whose validation clips have more block-grid texture than this times the "
         "proxy's (lightcrafter.refiner.fit.block_ratio: 8- and 16-px blockiness, refined over proxy) are not chosen, "
@@ -357,6 +366,7 @@ def apply_preset(section: dict | None, default_preset: str = "tiny", strict: boo
         cfg = deep_merge(deep_merge(base, PRESETS[preset]), section)
     if isinstance(cfg.get("model"), dict) and cfg["model"].get("proxy_anchor") == "none":
         cfg["infer"]["residual_scale"], cfg["select"]["residual_scales"] = 1.0, [1.0]
+        cfg["infer"]["correction_blur_px"], cfg["select"]["correction_blurs_px"] = 0.0, [0.0]
     return cfg
 
 

@@ -7,10 +7,11 @@
 2. **Train** the diffusion refiner on the fit pairs (:func:`.training.train`), keeping the weights at
    ``select.checkpoints`` and at the last step as candidates.
 3. **Select** on validation: every (candidate step, ``select.strengths``, ``select.guidance_scales``,
-   ``select.residual_scales``) refines up to ``select.max_val_pairs`` validation clips (taken
-   round-robin over validation scenes) with the run's sampler and seed; the highest mean
-   ``select.metric`` wins (ties: the earlier step, then the smaller strength, then the smaller
-   guidance, then the full model). Residual scale 0 is the learned anchor map of the proxy alone
+   ``select.residual_scales``, ``select.correction_blurs_px``) refines up to ``select.max_val_pairs``
+   validation clips (taken round-robin over validation scenes) with the run's sampler and seed; the
+   highest mean ``select.metric`` wins (ties: the earlier step, then the smaller strength, then the
+   smaller guidance, then the full model, then the correction unblurred). Residual scale 0 is the
+   learned anchor map of the proxy alone
    (trained jointly with the transformer): when the transformer's correction does not generalise to
    unseen scenes, validation says so and the refiner falls back to its anchor. With
    ``select.max_block_ratio`` a candidate whose clips carry more block-grid texture than that times the
@@ -21,7 +22,8 @@
 4. **Baselines** (``baselines.*``): the one-step regressor (same network, trained on the fit pairs for
    ``baselines.regressor_steps``) and the affine colour fit, both scored on the same validation clips.
 5. Writes ``out_dir/model.pt`` last: the chosen weights, the config with the chosen
-   ``infer.strength``/``guidance_scale``/``residual_scale``, the selection table, the baselines and the carve-out.
+   ``infer.strength``/``guidance_scale``/``residual_scale``/``correction_blur_px``, the selection table,
+   the baselines and the carve-out.
 
 Resumable: a killed run resumes training from its checkpoints (bit-exact) and redoes the cheap,
 deterministic selection. Test pairs are never read.
@@ -131,12 +133,13 @@ def block_ratio(video, proxy) -> float:
 
 
 def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None,
-              residual_scale: float | None = None):
+              residual_scale: float | None = None, correction_blur_px: float | None = None):
     """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``)."""
     def fn(item):
         gen = torch.Generator().manual_seed(cfg["seed"])
         return refine_video(model, item["proxy"][None], cfg, generator=gen, strength=strength,
-                            guidance_scale=guidance_scale, num_steps=num_steps, residual_scale=residual_scale)[0]
+                            guidance_scale=guidance_scale, num_steps=num_steps, residual_scale=residual_scale,
+                            correction_blur_px=correction_blur_px)[0]
     return fn
 
 
@@ -218,16 +221,19 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
         flow_cache: dict | None = {} if min_warp is not None else None
         for step in steps:
             model = _candidate_model(cfg, out_dir, step, max_steps, final["ae"])
-            for s, g, rs in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"]),
-                                              sorted(sel["residual_scales"], reverse=True)):
-                if float(rs) == 0.0 and (float(g) != min(sel["guidance_scales"]) or float(s) != min(sel["strengths"])):
-                    continue  # the anchor alone ignores guidance and, to rounding, strength: score it once per
-                    # step, at the smallest of each
-                sc = score_method(refine_fn(model, cfg, float(s), float(g), residual_scale=float(rs)), val_ds,
+            for s, g, rs, bl in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"]),
+                                                  sorted(sel["residual_scales"], reverse=True),
+                                                  sorted(sel["correction_blurs_px"])):
+                if float(rs) == 0.0 and (float(g) != min(sel["guidance_scales"]) or float(s) != min(sel["strengths"])
+                                         or float(bl) != min(sel["correction_blurs_px"])):
+                    continue  # the anchor alone ignores guidance, the correction's blur and, to rounding,
+                    # strength: score it once per step, at the smallest of each
+                sc = score_method(refine_fn(model, cfg, float(s), float(g), residual_scale=float(rs),
+                                            correction_blur_px=float(bl)), val_ds,
                                   block_grid=max_block is not None, temporal=flow_cache)
                 row = {"step": step, "strength": float(s), "guidance_scale": float(g),
-                       "residual_scale": float(rs), "psnr_db": sc["psnr_db"], "ssim": sc["ssim"],
-                       "seconds_per_clip": sc["seconds_per_clip"]}
+                       "residual_scale": float(rs), "correction_blur_px": float(bl), "psnr_db": sc["psnr_db"],
+                       "ssim": sc["ssim"], "seconds_per_clip": sc["seconds_per_clip"]}
                 if max_block is not None:
                     row["block_ratio"] = sc["block_ratio"]
                 if min_warp is not None:
@@ -235,8 +241,8 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
                 if max_block is not None or min_warp is not None:
                     row["admissible"] = _within_limits(row, max_block, min_warp)
                 table.append(row)
-                log.info("validation step %d strength %.2f guidance %.1f residual %.1f: %.3f dB, SSIM %.4f%s%s", step,
-                         s, g, rs, sc["psnr_db"], sc["ssim"], "" if max_block is None else
+                log.info("validation step %d strength %.2f guidance %.1f residual %.1f blur %.1f px: %.3f dB, SSIM "
+                         "%.4f%s%s", step, s, g, rs, bl, sc["psnr_db"], sc["ssim"], "" if max_block is None else
                          f", block grid x{sc['block_ratio']:.2f} of the proxy's", "" if min_warp is None else
                          f", Warp-SSIM x{sc['warp_ssim_ratio']:.3f} of the proxy's")
         metric = sel["metric"]
@@ -246,11 +252,13 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
             pool = _least_violating(table, max_block, min_warp)
             log.info("no candidate is within select.max_block_ratio %s and select.min_warp_ssim_ratio %s; the least "
                      "violating is chosen", max_block, min_warp)
-        # ties go to the earlier step, the smaller strength and guidance, and the full model (residual 1)
+        # ties go to the earlier step, the smaller strength and guidance, the full model (residual 1) and the
+        # correction unblurred
         best = max(pool, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"],
-                                        r["residual_scale"]))
+                                        r["residual_scale"], -r["correction_blur_px"]))
         chosen = {"step": best["step"], "strength": best["strength"], "guidance_scale": best["guidance_scale"],
-                  "residual_scale": best["residual_scale"], "metric": metric, "value": best[metric]}
+                  "residual_scale": best["residual_scale"], "correction_blur_px": best["correction_blur_px"],
+                  "metric": metric, "value": best[metric]}
         for key in ("block_ratio", "warp_ssim_ratio"):
             if key in best:
                 chosen[key] = best[key]

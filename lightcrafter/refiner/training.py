@@ -415,7 +415,7 @@ def save_model(path: Path, weights: dict, ae, cfg: dict) -> None:
     save_checkpoint(path, {**weights, "ae": ae.state_dict(), "config": cfg})
 
 
-SELECTED_INFER_KEYS = ("strength", "guidance_scale", "residual_scale")
+SELECTED_INFER_KEYS = ("strength", "guidance_scale", "residual_scale", "correction_blur_px")
 
 
 def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = True, device=None) -> Refiner:

@@ -143,6 +143,7 @@ def _selection_section(evals: dict) -> str:
             continue
         rows.append({"variant": v, "step": ch.get("step"), "strength": ch.get("strength"),
                      "guidance": ch.get("guidance_scale"), "residual": ch.get("residual_scale", 1.0),
+                     "blur_px": ch.get("correction_blur_px", 0.0),
                      "val_refined_db": ch.get("value") if ch.get("metric") == "psnr_db" else None,
                      "val_proxy_db": (sel.get("val_proxy") or {}).get("psnr_db"),
                      "val_block_ratio": ch.get("block_ratio"), "val_warp_ssim_ratio": ch.get("warp_ssim_ratio"),
@@ -153,11 +154,13 @@ def _selection_section(evals: dict) -> str:
             "full refiner; residual 0 = the learned anchor of the proxy alone (a colour map and a small kernel, "
             "refiner.model.anchor_space), chosen when the transformer's correction scored lower on validation or "
             "every candidate with it was refused; a residual in between adds the transformer's correction at that "
-            "weight (refiner.select.residual_scales). Admissible: candidates within refiner.select.max_block_ratio, "
+            "weight (refiner.select.residual_scales); blur_px: the Gaussian on the transformer's correction, in "
+            "pixels (refiner.select.correction_blurs_px; 0 = none). Admissible: candidates within "
+            "refiner.select.max_block_ratio, "
             "the block grid over the proxy's, and refiner.select.min_warp_ssim_ratio, the Warp-SSIM over the "
             "proxy's.</p>"
-            + _table(rows, ["variant", "step", "strength", "guidance", "residual", "val_refined_db", "val_proxy_db",
-                            "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"]))
+            + _table(rows, ["variant", "step", "strength", "guidance", "residual", "blur_px", "val_refined_db",
+                            "val_proxy_db", "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"]))
 
 
 def _admissible_count(sel: dict) -> str | None:
