@@ -154,13 +154,15 @@ def _selection_section(evals: dict) -> str:
             "full refiner; residual 0 = the learned anchor of the proxy alone (a colour map and a small kernel, "
             "refiner.model.anchor_space), chosen when the transformer's correction scored lower on validation or "
             "every candidate with it was refused; a residual in between adds the transformer's correction at that "
-            "weight (refiner.select.residual_scales); blur_px: the Gaussian on the transformer's correction, in "
+            "weight (refiner.select.residual_scales); blur px: the Gaussian on the transformer's correction, in "
             "pixels (refiner.select.correction_blurs_px; 0 = none). Admissible: candidates within "
             "refiner.select.max_block_ratio, "
             "the block grid over the proxy's, and refiner.select.min_warp_ssim_ratio, the Warp-SSIM over the "
             "proxy's.</p>"
             + _table(rows, ["variant", "step", "strength", "guidance", "residual", "blur_px", "val_refined_db",
-                            "val_proxy_db", "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"]))
+                            "val_proxy_db", "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"],
+                     labels={"blur_px": "blur px", "val_refined_db": "validation dB", "val_proxy_db": "proxy dB",
+                             "val_block_ratio": "block grid ratio", "val_warp_ssim_ratio": "Warp-SSIM ratio"}))
 
 
 def _admissible_count(sel: dict) -> str | None:
