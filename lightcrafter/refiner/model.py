@@ -351,10 +351,13 @@ class Refiner(nn.Module):
             return out
         return self._anchor_v(noisy, proxy if anchor is None else anchor, timestep, scale * out)
 
+    def anchor_latent(self, a: torch.Tensor) -> torch.Tensor:
+        """The proxy anchor's x0 for the proxy latent ``a``: the learned map of ``a`` if any, else ``a``."""
+        return self.anchor_map(a) if self.anchor_map is not None else a
+
     def _anchor_v(self, noisy: torch.Tensor, a: torch.Tensor, timestep: torch.Tensor, out) -> torch.Tensor:
-        """v of the proxy anchor (latent ``a``, through the learned map if any) plus the correction ``out``."""
-        if self.anchor_map is not None:
-            a = self.anchor_map(a)
+        """v of the proxy anchor (:meth:`anchor_latent` of ``a``) plus the correction ``out``."""
+        a = self.anchor_latent(a)
         ab = self._abar(timestep)
         s1 = (1 - ab).sqrt()
         v_anchor = (ab.sqrt() * noisy - a) / s1

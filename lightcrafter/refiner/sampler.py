@@ -148,8 +148,7 @@ def blur_correction(refined: torch.Tensor, anchor: torch.Tensor, sigma_px: float
 @torch.no_grad()
 def anchor_video(model, proxy_latent: torch.Tensor) -> torch.Tensor:
     """The decoded output of the proxy anchor alone (what ``residual_scale`` 0 returns, without sampling)."""
-    a = model.anchor_map(proxy_latent) if getattr(model, "anchor_map", None) is not None else proxy_latent
-    return model.ae.decode(a)
+    return model.ae.decode(model.anchor_latent(proxy_latent))
 
 
 @torch.no_grad()
