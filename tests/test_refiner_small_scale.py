@@ -471,20 +471,21 @@ def test_block_ratio_measures_an_added_grid_against_the_proxy():
 
 
 def _tag_outputs_with_their_residual_scale(fitmod, monkeypatch):
-    """Selection's refined clips carry the residual scale and correction blur they were made with (``out.residual``,
-    ``out.blur``), so a test can fake a metric per kind of candidate."""
-    real_refine_fn = fitmod.refine_fn
+    """Selection's refined clips carry the residual scale and correction blurs they were made with
+    (``out.residual``, ``out.blur``, ``out.blur_frames``), so a test can fake a metric per kind of candidate."""
+    real_refine_blurs_fn = fitmod.refine_blurs_fn
 
-    def tagged(model, cfg, strength, guidance_scale, num_steps=None, residual_scale=None, correction_blur_px=None):
-        fn = real_refine_fn(model, cfg, strength, guidance_scale, num_steps, residual_scale, correction_blur_px)
+    def tagged(model, cfg, strength, guidance_scale, residual_scale, blurs):
+        fn = real_refine_blurs_fn(model, cfg, strength, guidance_scale, residual_scale, blurs)
 
         def run(item):
-            out = fn(item)
-            out.residual, out.blur = residual_scale, correction_blur_px
-            return out
+            outs = fn(item)
+            for (px, frames), out in outs.items():
+                out.residual, out.blur, out.blur_frames = residual_scale, px, frames
+            return outs
         return run
 
-    monkeypatch.setattr(fitmod, "refine_fn", tagged)
+    monkeypatch.setattr(fitmod, "refine_blurs_fn", tagged)
 
 
 def test_selection_refuses_candidates_that_add_a_block_grid(tmp_path, monkeypatch):
@@ -603,31 +604,73 @@ def test_blur_correction_removes_the_token_grid_and_keeps_the_anchor():
     assert torch.isfinite(blur_correction(refined, anchor, 1e-6)).all()
 
 
+def test_blur_correction_in_time_removes_the_4_frame_steps_and_keeps_slow_change():
+    """infer.correction_blur_frames: a correction that steps once per 4-frame latent frame (the tiny autoencoder's
+    temporal blocks) on a moving anchor makes the clip jump at the block boundaries; blurred along the clip the
+    jump is gone, a correction that changes linearly in time is kept away from the clip's ends, and the anchor's
+    motion is untouched."""
+    from lightcrafter.evaluation import block_jump
+    from lightcrafter.refiner.data import to_display_frames
+    from lightcrafter.refiner.sampler import blur_correction
+
+    n, h, w = 17, 16, 48
+    t = torch.arange(n).float().view(n, 1, 1)
+    xx = torch.arange(w).float().view(1, 1, w)
+    anchor = (0.1 * torch.sin((xx - t) * 2 * torch.pi / 12)).expand(n, h, w).expand(1, 3, n, h, w).clone()
+    steps = 0.1 * torch.div(t + 3, 4, rounding_mode="floor")  # constant over each latent frame's 4 frames
+    ramp = 0.01 * t
+    refined = anchor + (steps + ramp).expand(n, h, w)
+    jump = {name: block_jump(to_display_frames(v[0])).value for name, v in
+            (("anchor", anchor), ("refined", refined), ("blurred", blur_correction(refined, anchor, 0.0, 2.0)))}
+    assert abs(jump["anchor"] - 1.0) < 0.05 and jump["refined"] > 1.5, jump
+    assert jump["blurred"] < 1.1, jump
+    only_ramp = blur_correction(anchor + ramp.expand(n, h, w), anchor, 0.0, 2.0)
+    inner = slice(6, n - 6)  # beyond 3 sigma of either end
+    assert torch.allclose(only_ramp[:, :, inner], (anchor + ramp.expand(n, h, w))[:, :, inner], atol=1e-5)
+    assert torch.equal(blur_correction(refined, anchor, 0.0, 0.0), refined)
+    one = refined[:, :, :1]  # a one-frame clip: nothing to blur along
+    assert torch.allclose(blur_correction(one, anchor[:, :, :1], 0.0, 2.0), one, atol=1e-6)
+    assert torch.isfinite(blur_correction(refined, anchor, 0.0, 1e-6)).all()
+
+
 def test_selection_chooses_the_correction_blur_and_inference_applies_it(tmp_path, monkeypatch):
-    """select.correction_blurs_px: every candidate with the transformer's correction is scored at each blur, the
-    anchor alone once; the chosen blur is stored in model.pt's infer section and the refiner it loads applies it."""
+    """select.correction_blurs_px x correction_blurs_frames: each candidate with the transformer's correction is
+    sampled once per validation clip and scored at every blur, the anchor alone once; a candidate stepping at the
+    4-frame blocks beyond select.max_jump_ratio is refused like one with a block grid; the chosen blurs are stored
+    in model.pt's infer section and the refiner it loads applies them."""
     from lightcrafter.refiner import fit as fitmod
     from lightcrafter.refiner import load_model, refine_video
     from lightcrafter.refiner.sampler import anchor_video, blur_correction
 
     _tag_outputs_with_their_residual_scale(fitmod, monkeypatch)
     monkeypatch.setattr(fitmod, "block_ratio", lambda out, proxy: 1.0 if out.residual and out.blur else 2.0)
+    monkeypatch.setattr(fitmod, "jump_ratio", lambda out, target: 1.0 if out.blur_frames else 1.5)
+    samples = []
+    real_parts = fitmod.refine_parts
+    monkeypatch.setattr(fitmod, "refine_parts", lambda *a, **k: samples.append(k["residual_scale"]) or
+                        real_parts(*a, **k))
     pairs = _toy_manifest(tmp_path, ["s0", "s1"])
     cfg = resolve_config({**SMALL, "train": {"max_steps": 2, "grad_accum": 1}, "infer": {"num_steps": 4},
                           "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0],
                                      "residual_scales": [0.0, 1.0], "correction_blurs_px": [0.0, 3.0],
-                                     "max_block_ratio": 1.1},
+                                     "correction_blurs_frames": [0.0, 1.0], "max_block_ratio": 1.1,
+                                     "max_jump_ratio": 1.1},
                           "baselines": {"regressor_steps": 0, "affine_colour": False}})
     res = fitmod.fit_refiner(cfg, pairs, tmp_path / "m", progress=False)["selection"]
-    rows = {(r["residual_scale"], r["correction_blur_px"]): r["admissible"] for r in res["table"]}
-    assert rows == {(1.0, 0.0): False, (1.0, 3.0): True, (0.0, 0.0): False}
-    assert (res["chosen"]["residual_scale"], res["chosen"]["correction_blur_px"]) == (1.0, 3.0)
+    rows = {(r["residual_scale"], r["correction_blur_px"], r["correction_blur_frames"]): r["admissible"]
+            for r in res["table"]}
+    assert rows == {(1.0, 0.0, 0.0): False, (1.0, 0.0, 1.0): False, (1.0, 3.0, 0.0): False, (1.0, 3.0, 1.0): True,
+                    (0.0, 0.0, 0.0): False}
+    assert sorted(samples) == [0.0] * res["num_val_pairs"] + [1.0] * res["num_val_pairs"]  # one sample per clip
+    assert {k: res["chosen"][k] for k in ("residual_scale", "correction_blur_px", "correction_blur_frames")} == \
+        {"residual_scale": 1.0, "correction_blur_px": 3.0, "correction_blur_frames": 1.0}
     model = load_model(tmp_path / "m" / "model.pt", device="cpu")
-    assert (model.cfg["infer"]["residual_scale"], model.cfg["infer"]["correction_blur_px"]) == (1.0, 3.0)
+    assert [model.cfg["infer"][k] for k in ("residual_scale", "correction_blur_px", "correction_blur_frames")] == \
+        [1.0, 3.0, 1.0]
     item = next(iter(fitmod.PairsDataset(pairs, "train")))
     got = refine_video(model, item["proxy"][None], model.cfg, generator=torch.Generator().manual_seed(0))
     raw = refine_video(model, item["proxy"][None], model.cfg, generator=torch.Generator().manual_seed(0),
-                       correction_blur_px=0.0)
+                       correction_blur_px=0.0, correction_blur_frames=0.0)
     anchor = anchor_video(model, model.ae.encode(item["proxy"][None])).clamp(-1, 1)
-    assert torch.allclose(got, blur_correction(raw, anchor, 3.0).clamp(-1, 1), atol=1e-5)
+    assert torch.allclose(got, blur_correction(raw, anchor, 3.0, 1.0).clamp(-1, 1), atol=1e-5)
     assert not torch.allclose(got, raw, atol=1e-3)

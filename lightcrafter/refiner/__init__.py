@@ -26,10 +26,11 @@ config key (the ``paper`` preset keeps the paper's values):
 * ``train.timesteps: sampler_range``: train on the timesteps sampling visits;
 * ``select.*``: checkpoint, strength, guidance, ``infer.residual_scale`` (the weight of the
   transformer's correction on the learned anchor; 0 = the anchor map alone) and
-  ``infer.correction_blur_px`` (a Gaussian on that correction, which loses its token grid) chosen on
-  validation scenes carved out of the train split (never test); ``baselines.*``: a one-step regressor
-  with the same network, and an affine colour fit, trained on the same pairs and evaluated beside the
-  refiner;
+  ``infer.correction_blur_px`` / ``correction_blur_frames`` (a Gaussian on that correction in each frame
+  and along the clip, which loses its token grid and its 4-frame steps) chosen on validation scenes
+  carved out of the train split (never test), with limits on the block grid, the 4-frame jump and
+  Warp-SSIM; ``baselines.*``: a one-step regressor with the same network, and an affine colour fit,
+  trained on the same pairs and evaluated beside the refiner;
 * ``infer.num_samples``: the refined video is the mean of several samples (a posterior-mean
   estimate, which PSNR rewards); ``model.ae_normalisation``, ``train.hflip``: latent scaling and
   augmentation of the tiny model.

@@ -183,6 +183,11 @@ class RefinerInferSettings(_Section):
         "lightcrafter.refiner.sampler.blur_correction): the correction keeps its shading and colour and loses the "
         "tiny preset's 16-pixel token grid. 0 = off; ignored without an anchor. Chosen on validation when "
         "select.val_scenes > 0 (select.correction_blurs_px)")
+    correction_blur_frames: NonNegativeFloat = Field(
+        0.0, description="sigma in frames of a Gaussian applied along the clip to the same correction (after "
+        "correction_blur_px): the tiny preset's correction changes once per 4-frame latent frame, and steps at "
+        "those boundaries; 0 = off; ignored without an anchor. Chosen on validation when select.val_scenes > 0 "
+        "(select.correction_blurs_frames)")
     num_samples: PositiveInt = Field(
         1, description="the refined video is the pixel-wise mean of this many samples drawn with successive noise "
         "from the run's generator (a posterior-mean estimate, which PSNR/SSIM reward); 1 = a single sample (paper)")
@@ -232,10 +237,17 @@ class RefinerSelectSettings(_Section):
     correction_blurs_px: list[NonNegativeFloat] = Field(
         [0.0], min_length=1, description="candidate infer.correction_blur_px values (0 = the correction as the "
         "transformer made it; only with a proxy anchor and a residual scale above 0)")
+    correction_blurs_frames: list[NonNegativeFloat] = Field(
+        [0.0], min_length=1, description="candidate infer.correction_blur_frames values, each with every "
+        "correction_blurs_px value (a clip is sampled once per candidate and every blur scored on it)")
     max_block_ratio: Optional[PositiveFloat] = Field(
         None, description="candidates whose validation clips have more block-grid texture than this times the "
         "proxy's (lightcrafter.refiner.fit.block_ratio: 8- and 16-px blockiness, refined over proxy) are not chosen, "
         "whatever their score (the refiner's goal: within 10 % of the target's); null = no limit")
+    max_jump_ratio: Optional[PositiveFloat] = Field(
+        None, description="candidates whose validation clips step at the autoencoder's 4-frame blocks more than "
+        "this times their targets do (lightcrafter.refiner.fit.jump_ratio: the 4-frame jump, refined over target) "
+        "are not chosen, whatever their score (the refiner's goal: within 10 % of the target's); null = no limit")
     min_warp_ssim_ratio: Optional[PositiveFloat] = Field(
         None, description="candidates whose validation clips are less consistent over time than this times the "
         "proxy's (lightcrafter.refiner.fit.warp_ssim_ratio: Warp-SSIM with the target's optical flow, refined over "
@@ -367,6 +379,7 @@ def apply_preset(section: dict | None, default_preset: str = "tiny", strict: boo
     if isinstance(cfg.get("model"), dict) and cfg["model"].get("proxy_anchor") == "none":
         cfg["infer"]["residual_scale"], cfg["select"]["residual_scales"] = 1.0, [1.0]
         cfg["infer"]["correction_blur_px"], cfg["select"]["correction_blurs_px"] = 0.0, [0.0]
+        cfg["infer"]["correction_blur_frames"], cfg["select"]["correction_blurs_frames"] = 0.0, [0.0]
     return cfg
 
 

@@ -7,23 +7,22 @@
 2. **Train** the diffusion refiner on the fit pairs (:func:`.training.train`), keeping the weights at
    ``select.checkpoints`` and at the last step as candidates.
 3. **Select** on validation: every (candidate step, ``select.strengths``, ``select.guidance_scales``,
-   ``select.residual_scales``, ``select.correction_blurs_px``) refines up to ``select.max_val_pairs``
-   validation clips (taken round-robin over validation scenes) with the run's sampler and seed; the
-   highest mean ``select.metric`` wins (ties: the earlier step, then the smaller strength, then the
-   smaller guidance, then the full model, then the correction unblurred). Residual scale 0 is the
-   learned anchor map of the proxy alone
-   (trained jointly with the transformer): when the transformer's correction does not generalise to
-   unseen scenes, validation says so and the refiner falls back to its anchor. With
-   ``select.max_block_ratio`` a candidate whose clips carry more block-grid texture than that times the
-   proxy's (:func:`block_ratio`) is not chosen, whatever its score, and with ``select.min_warp_ssim_ratio``
-   neither is one whose clips are less consistent over time than that times the proxy's
-   (:func:`warp_ssim_ratio`). Without validation
-   scenes nothing is selected and ``infer.*`` is used as configured.
+   ``select.residual_scales``) refines up to ``select.max_val_pairs`` validation clips (taken round-robin
+   over validation scenes) with the run's sampler and seed, once, and each (``select.correction_blurs_px``,
+   ``select.correction_blurs_frames``) is applied to that sample; the highest mean ``select.metric`` wins
+   (ties: the earlier step, then the smaller strength, then the smaller guidance, then the full model, then
+   the correction least blurred). Residual scale 0 is the learned anchor map of the proxy alone (trained
+   jointly with the transformer): when the transformer's correction does not generalise to unseen scenes,
+   validation says so and the refiner falls back to its anchor. A candidate is not chosen, whatever its score,
+   whose clips carry more block-grid texture than ``select.max_block_ratio`` times the proxy's
+   (:func:`block_ratio`), step at the 4-frame blocks more than ``select.max_jump_ratio`` times their targets
+   (:func:`jump_ratio`), or are less consistent over time than ``select.min_warp_ssim_ratio`` times the
+   proxy's (:func:`warp_ssim_ratio`); each limit applies when set. Without validation scenes nothing is
+   selected and ``infer.*`` is used as configured.
 4. **Baselines** (``baselines.*``): the one-step regressor (same network, trained on the fit pairs for
    ``baselines.regressor_steps``) and the affine colour fit, both scored on the same validation clips.
-5. Writes ``out_dir/model.pt`` last: the chosen weights, the config with the chosen
-   ``infer.strength``/``guidance_scale``/``residual_scale``/``correction_blur_px``, the selection table,
-   the baselines and the carve-out.
+5. Writes ``out_dir/model.pt`` last: the chosen weights, the config with the chosen ``infer.*``
+   (:data:`.training.SELECTED_INFER_KEYS`), the selection table, the baselines and the carve-out.
 
 Resumable: a killed run resumes training from its checkpoints (bit-exact) and redoes the cheap,
 deterministic selection. Test pairs are never read.
@@ -45,7 +44,7 @@ from lightcrafter.io import DataError
 from .baselines import apply_affine_colour, fit_affine_colour, regress_video
 from .data import PairsDataset, read_pairs
 from .model import Refiner
-from .sampler import refine_video
+from .sampler import blur_correction, refine_parts, refine_video
 from .scoring import clip_scores
 from .training import SELECTED_INFER_KEYS, load_model, run_fingerprint, save_checkpoint, snapshot_path, train
 from .validation import carve_validation, pair_group
@@ -71,22 +70,37 @@ def score_method(fn, dataset, block_grid: bool = False, temporal: dict | None = 
     ``block_grid``: also ``block_ratio``, the mean over pairs of the output's block-grid texture over the
     proxy's (:func:`block_ratio`). ``temporal``: a dict (reused across calls, it caches each pair's target flow
     and proxy Warp-SSIM): also ``warp_ssim_ratio``, the mean over pairs of :func:`warp_ssim_ratio`."""
-    rows, secs = [], []
+    return score_variants(lambda item: {None: fn(item)}, dataset, block_grid, temporal)[None]
+
+
+def score_variants(fn, dataset, block_grid: bool = False, temporal: dict | None = None,
+                   jump: bool = False) -> dict:
+    """:func:`score_method` for ``fn(item) -> {key: (3, N, H, W)}``, several outputs made from one run over a
+    clip (e.g. one sample and each correction blur applied to it): ``{key: scores}``, every key's seconds per
+    clip being that shared run's. ``jump``: also ``jump_ratio``, the mean over pairs of :func:`jump_ratio`."""
+    rows: dict = {}
+    secs = []
     for i in range(len(dataset)):
         item = dataset[i]
         t0 = time.perf_counter()
-        out = fn(item)
+        outs = fn(item)
         secs.append(time.perf_counter() - t0)
-        rows.append({"pair_id": item["pair_id"], **clip_scores(out, item["target"])})
-        if block_grid:
-            rows[-1]["block_ratio"] = block_ratio(out, item["proxy"])
-        if temporal is not None:
-            rows[-1]["warp_ssim_ratio"] = warp_ssim_ratio(out, item, temporal)
-    res = {"pairs": rows, "psnr_db": float(np.mean([r["psnr_db"] for r in rows])),
-           "ssim": float(np.mean([r["ssim"] for r in rows])), "seconds_per_clip": float(np.mean(secs))}
-    for key in ("block_ratio", "warp_ssim_ratio"):
-        if rows and key in rows[0]:
-            res[key] = float(np.mean([r[key] for r in rows]))
+        for key, out in outs.items():
+            row = {"pair_id": item["pair_id"], **clip_scores(out, item["target"])}
+            if block_grid:
+                row["block_ratio"] = block_ratio(out, item["proxy"])
+            if temporal is not None:
+                row["warp_ssim_ratio"] = warp_ssim_ratio(out, item, temporal)
+            if jump:
+                row["jump_ratio"] = jump_ratio(out, item["target"])
+            rows.setdefault(key, []).append(row)
+    res = {}
+    for key, kr in rows.items():
+        res[key] = {"pairs": kr, "psnr_db": float(np.mean([r["psnr_db"] for r in kr])),
+                    "ssim": float(np.mean([r["ssim"] for r in kr])), "seconds_per_clip": float(np.mean(secs))}
+        for name in ("block_ratio", "warp_ssim_ratio", "jump_ratio"):
+            if name in kr[0]:
+                res[key][name] = float(np.mean([r[name] for r in kr]))
     return res
 
 
@@ -132,6 +146,19 @@ def block_ratio(video, proxy) -> float:
     return float(max(ratios)) if ratios else 1.0
 
 
+def jump_ratio(video, target) -> float:
+    """Temporal steps of a refined clip at the autoencoder's 4-frame blocks relative to its target's: the
+    :func:`lightcrafter.evaluation.block_jump` of ``video`` over that of ``target`` (1 = the target's; the
+    refiner's goal is within 10 %). A clip without an answer (too short, no change between boundaries) counts
+    as 1. Both (3, N, H, W) in [-1, 1]."""
+    from lightcrafter.evaluation import block_jump
+
+    from .data import to_display_frames
+
+    ra, rb = block_jump(to_display_frames(video)).value, block_jump(to_display_frames(target)).value
+    return float(ra / rb) if ra is not None and rb else 1.0
+
+
 def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None,
               residual_scale: float | None = None, correction_blur_px: float | None = None):
     """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``)."""
@@ -143,23 +170,43 @@ def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_step
     return fn
 
 
-def _within_limits(row: dict, max_block: float | None, min_warp: float | None) -> bool:
-    return ((max_block is None or row["block_ratio"] <= max_block)
-            and (min_warp is None or row["warp_ssim_ratio"] >= min_warp))
+def refine_blurs_fn(model, cfg: dict, strength: float, guidance_scale: float, residual_scale: float,
+                    blurs: list[tuple[float, float]]):
+    """A clip -> ``{(correction_blur_px, correction_blur_frames): refined clip}`` function: the clip sampled once
+    with the run's per-clip seed, then each correction blur applied to that sample -- what
+    ``scripts/infer_refiner.py`` makes with that blur, at the cost of one sample."""
+    def fn(item):
+        gen = torch.Generator().manual_seed(cfg["seed"])
+        out, anchor = refine_parts(model, item["proxy"][None], cfg, generator=gen, strength=strength,
+                                   guidance_scale=guidance_scale, residual_scale=residual_scale,
+                                   with_anchor=any(px > 0 or fr > 0 for px, fr in blurs))
+        return {(px, fr): (out if anchor is None else blur_correction(out, anchor, px, fr).clamp(-1, 1)).cpu()[0]
+                for px, fr in blurs}
+    return fn
 
 
-def _least_violating(table: list[dict], max_block: float | None, min_warp: float | None) -> list[dict]:
-    """When no candidate is within both limits: those within the block limit if any (else the least blocky),
-    and among them the most consistent over time when that limit is set."""
+def _limits(sel: dict) -> list[tuple[str, float, str]]:
+    """The selection's limits that are set: (table key, bound, "max" | "min")."""
+    keys = (("max_block_ratio", "block_ratio", "max"), ("max_jump_ratio", "jump_ratio", "max"),
+            ("min_warp_ssim_ratio", "warp_ssim_ratio", "min"))
+    return [(key, float(sel[name]), kind) for name, key, kind in keys if sel.get(name) is not None]
+
+
+def _within_limits(row: dict, limits) -> bool:
+    return all(row[k] <= b if kind == "max" else row[k] >= b for k, b, kind in limits)
+
+
+def _least_violating(table: list[dict], limits) -> list[dict]:
+    """When no candidate is within every limit: for each upper limit in turn (block grid, then 4-frame jump),
+    those within it if any, else the least violating; then, with a Warp-SSIM limit, the most consistent over
+    time among them."""
     pool = table
-    if max_block is not None:
-        pool = [r for r in table if r["block_ratio"] <= max_block]
-        if not pool:
-            least = min(r["block_ratio"] for r in table)
-            pool = [r for r in table if r["block_ratio"] == least]
-    if min_warp is not None:
-        most = max(r["warp_ssim_ratio"] for r in pool)
-        pool = [r for r in pool if r["warp_ssim_ratio"] == most]
+    for key, bound, kind in limits:
+        if kind == "max":
+            within = [r for r in pool if r[key] <= bound]
+            pool = within or [r for r in pool if r[key] == min(x[key] for x in pool)]
+        else:
+            pool = [r for r in pool if r[key] == max(x[key] for x in pool)]
     return pool
 
 
@@ -170,6 +217,59 @@ def _candidate_model(cfg: dict, out_dir: Path, step: int, final_step: int, ae_st
     model.load_weights(torch.load(snapshot_path(out_dir, step), map_location="cpu", weights_only=False))
     model.ae.load_state_dict(ae_state)
     return model.to_configured_device().eval()
+
+
+def select_on_validation(cfg: dict, out_dir: Path, steps: list[int], ae_state: dict, val_ds,
+                         log: logging.Logger) -> tuple[dict, int]:
+    """Step 3 of the module docstring over the candidate ``steps`` saved in ``out_dir`` (the last one being
+    ``train.max_steps``'s final weights): the selection record (chosen settings, the table of every candidate,
+    the proxy's validation score) and the chosen step."""
+    sel = cfg["select"]
+    max_steps = int(cfg["train"]["max_steps"])
+    table = []
+    limits = _limits(sel)
+    lim = {k for k, _b, _kind in limits}
+    flow_cache: dict | None = {} if "warp_ssim_ratio" in lim else None
+    all_blurs = sorted(itertools.product(sorted(sel["correction_blurs_px"]), sorted(sel["correction_blurs_frames"])))
+    for step in steps:
+        model = _candidate_model(cfg, out_dir, step, max_steps, ae_state)
+        for s, g, rs in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"]),
+                                          sorted(sel["residual_scales"], reverse=True)):
+            if float(rs) == 0.0 and (float(g) != min(sel["guidance_scales"]) or float(s) != min(sel["strengths"])):
+                continue  # the anchor alone ignores guidance and, to rounding, strength: score it once per step,
+                # at the smallest of each (and of the correction's blurs: it has no correction to blur)
+            blurs = all_blurs[:1] if float(rs) == 0.0 else all_blurs
+            scores = score_variants(refine_blurs_fn(model, cfg, float(s), float(g), float(rs), blurs), val_ds,
+                                    block_grid="block_ratio" in lim, temporal=flow_cache, jump="jump_ratio" in lim)
+            for (bl, bf), sc in scores.items():
+                row = {"step": step, "strength": float(s), "guidance_scale": float(g), "residual_scale": float(rs),
+                       "correction_blur_px": float(bl), "correction_blur_frames": float(bf),
+                       "psnr_db": sc["psnr_db"], "ssim": sc["ssim"], "seconds_per_clip": sc["seconds_per_clip"]}
+                row.update({k: sc[k] for k in ("block_ratio", "jump_ratio", "warp_ssim_ratio") if k in lim})
+                if limits:
+                    row["admissible"] = _within_limits(row, limits)
+                table.append(row)
+                log.info("validation step %d strength %.2f guidance %.1f residual %.1f blur %.1f px %.1f frames: "
+                         "%.3f dB, SSIM %.4f%s", step, s, g, rs, bl, bf, sc["psnr_db"], sc["ssim"],
+                         "".join(f", {k} {sc[k]:.3f}" for k in ("block_ratio", "jump_ratio", "warp_ssim_ratio")
+                                 if k in lim))
+    metric = sel["metric"]
+    within = [r for r in table if r.get("admissible", True)]
+    pool = within
+    if not pool:
+        pool = _least_violating(table, limits)
+        log.info("no candidate is within the selection's limits %s; the least violating is chosen", limits)
+    # ties go to the earlier step, the smaller strength and guidance, the full model (residual 1) and the
+    # correction least blurred
+    best = max(pool, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"],
+                                    r["residual_scale"], -r["correction_blur_px"], -r["correction_blur_frames"]))
+    chosen = {"step": best["step"], "metric": metric, "value": best[metric],
+              **{k: best[k] for k in SELECTED_INFER_KEYS}}
+    chosen.update({k: best[k] for k in ("block_ratio", "jump_ratio", "warp_ssim_ratio") if k in best})
+    proxy = score_method(lambda item: item["proxy"], val_ds)
+    log.info("chosen on validation: %s (proxy alone %.3f dB)", chosen, proxy["psnr_db"])
+    return {"chosen": chosen, "table": table, "val_proxy": {k: proxy[k] for k in ("psnr_db", "ssim")},
+            "num_val_pairs": len(val_ds), "candidates": len(table), "admissible_candidates": len(within)}, best["step"]
 
 
 def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = True,
@@ -216,60 +316,11 @@ def fit_refiner(cfg: dict, pairs_path, out_dir, *, root=None, progress: bool = T
     chosen_sd = {k: final[k] for k in weight_keys if k in final}
     t0 = time.perf_counter()
     if selecting:
-        table = []
-        max_block, min_warp = sel.get("max_block_ratio"), sel.get("min_warp_ssim_ratio")
-        flow_cache: dict | None = {} if min_warp is not None else None
-        for step in steps:
-            model = _candidate_model(cfg, out_dir, step, max_steps, final["ae"])
-            for s, g, rs, bl in itertools.product(sorted(sel["strengths"]), sorted(sel["guidance_scales"]),
-                                                  sorted(sel["residual_scales"], reverse=True),
-                                                  sorted(sel["correction_blurs_px"])):
-                if float(rs) == 0.0 and (float(g) != min(sel["guidance_scales"]) or float(s) != min(sel["strengths"])
-                                         or float(bl) != min(sel["correction_blurs_px"])):
-                    continue  # the anchor alone ignores guidance, the correction's blur and, to rounding,
-                    # strength: score it once per step, at the smallest of each
-                sc = score_method(refine_fn(model, cfg, float(s), float(g), residual_scale=float(rs),
-                                            correction_blur_px=float(bl)), val_ds,
-                                  block_grid=max_block is not None, temporal=flow_cache)
-                row = {"step": step, "strength": float(s), "guidance_scale": float(g),
-                       "residual_scale": float(rs), "correction_blur_px": float(bl), "psnr_db": sc["psnr_db"],
-                       "ssim": sc["ssim"], "seconds_per_clip": sc["seconds_per_clip"]}
-                if max_block is not None:
-                    row["block_ratio"] = sc["block_ratio"]
-                if min_warp is not None:
-                    row["warp_ssim_ratio"] = sc["warp_ssim_ratio"]
-                if max_block is not None or min_warp is not None:
-                    row["admissible"] = _within_limits(row, max_block, min_warp)
-                table.append(row)
-                log.info("validation step %d strength %.2f guidance %.1f residual %.1f blur %.1f px: %.3f dB, SSIM "
-                         "%.4f%s%s", step, s, g, rs, bl, sc["psnr_db"], sc["ssim"], "" if max_block is None else
-                         f", block grid x{sc['block_ratio']:.2f} of the proxy's", "" if min_warp is None else
-                         f", Warp-SSIM x{sc['warp_ssim_ratio']:.3f} of the proxy's")
-        metric = sel["metric"]
-        within = [r for r in table if r.get("admissible", True)]
-        pool = within
-        if not pool:
-            pool = _least_violating(table, max_block, min_warp)
-            log.info("no candidate is within select.max_block_ratio %s and select.min_warp_ssim_ratio %s; the least "
-                     "violating is chosen", max_block, min_warp)
-        # ties go to the earlier step, the smaller strength and guidance, the full model (residual 1) and the
-        # correction unblurred
-        best = max(pool, key=lambda r: (r[metric], -r["step"], -r["strength"], -r["guidance_scale"],
-                                        r["residual_scale"], -r["correction_blur_px"]))
-        chosen = {"step": best["step"], "strength": best["strength"], "guidance_scale": best["guidance_scale"],
-                  "residual_scale": best["residual_scale"], "correction_blur_px": best["correction_blur_px"],
-                  "metric": metric, "value": best[metric]}
-        for key in ("block_ratio", "warp_ssim_ratio"):
-            if key in best:
-                chosen[key] = best[key]
-        if best["step"] != max_steps:
-            snap = torch.load(snapshot_path(out_dir, best["step"]), map_location="cpu", weights_only=False)
+        summary["selection"], best_step = select_on_validation(cfg, out_dir, steps, final["ae"], val_ds, log)
+        summary["selection"]["note"] = carve["note"]
+        if best_step != max_steps:
+            snap = torch.load(snapshot_path(out_dir, best_step), map_location="cpu", weights_only=False)
             chosen_sd = {k: snap[k] for k in weight_keys if k in snap}
-        proxy = score_method(lambda item: item["proxy"], val_ds)
-        summary["selection"] = {"chosen": chosen, "table": table, "val_proxy": {k: proxy[k] for k in ("psnr_db", "ssim")},
-                                "num_val_pairs": len(val_ds), "note": carve["note"], "candidates": len(table),
-                                "admissible_candidates": len(within)}
-        log.info("chosen on validation: %s (proxy alone %.3f dB)", chosen, proxy["psnr_db"])
     else:
         summary["selection"] = {"chosen": None, "note": carve["note"] if float(sel["val_scenes"]) > 0
                                 else "selection off (select.val_scenes = 0)"}

@@ -131,17 +131,37 @@ def gaussian_blur(frames: torch.Tensor, sigma_px: float) -> torch.Tensor:
     return F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), g.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
 
 
-def blur_correction(refined: torch.Tensor, anchor: torch.Tensor, sigma_px: float) -> torch.Tensor:
-    """``infer.correction_blur_px``: (B, 3, N, H, W) refined clip whose difference from the anchor's output (the
-    transformer's correction, display values) is blurred frame by frame by a Gaussian of ``sigma_px`` pixels.
-    The tiny preset's transformer predicts a token per 2x2 latent patch of 8x8-pixel DCT blocks, so its
-    correction carries a 16-pixel grid; the shading and colour it adds vary slower than that, and the
-    anchor keeps the proxy's detail. sigma 0 returns ``refined``."""
-    if sigma_px <= 0:
+def temporal_gaussian_blur(video: torch.Tensor, sigma_frames: float) -> torch.Tensor:
+    """(B, C, N, H, W) video blurred along its frames by a Gaussian of ``sigma_frames`` frames (3 sigma radius,
+    the first and last frames repeated beyond the clip's ends)."""
+    r = max(1, int(round(3.0 * sigma_frames)))
+    t = torch.arange(-r, r + 1, device=video.device)
+    g = torch.exp(-0.5 * (t.to(video.dtype) / sigma_frames) ** 2)
+    g = g / g.sum()
+    n = video.shape[2]
+    out = torch.zeros_like(video)
+    for k, w in zip(t.tolist(), g):
+        out += w * video[:, :, (torch.arange(n, device=video.device) + k).clamp(0, n - 1)]
+    return out
+
+
+def blur_correction(refined: torch.Tensor, anchor: torch.Tensor, sigma_px: float,
+                    sigma_frames: float = 0.0) -> torch.Tensor:
+    """``infer.correction_blur_px`` / ``correction_blur_frames``: (B, 3, N, H, W) refined clip whose difference
+    from the anchor's output (the transformer's correction, display values) is blurred by a Gaussian of
+    ``sigma_px`` pixels in each frame and of ``sigma_frames`` frames along the clip. The tiny preset's
+    transformer predicts a token per 2x2 latent patch of 8x8-pixel DCT blocks over 4-frame latent frames, so its
+    correction carries a 16-pixel grid and steps every 4 frames; the shading and colour it adds vary slower than
+    that, and the anchor keeps the proxy's detail. Both 0 return ``refined``."""
+    if sigma_px <= 0 and sigma_frames <= 0:
         return refined
     b, c, n, h, w = refined.shape
-    d = (refined - anchor).permute(0, 2, 1, 3, 4).reshape(b * n, c, h, w)
-    d = gaussian_blur(d, sigma_px).reshape(b, n, c, h, w).permute(0, 2, 1, 3, 4)
+    d = refined - anchor
+    if sigma_px > 0:
+        d = d.permute(0, 2, 1, 3, 4).reshape(b * n, c, h, w)
+        d = gaussian_blur(d, sigma_px).reshape(b, n, c, h, w).permute(0, 2, 1, 3, 4)
+    if sigma_frames > 0:
+        d = temporal_gaussian_blur(d, sigma_frames)
     return anchor + d
 
 
@@ -151,17 +171,21 @@ def anchor_video(model, proxy_latent: torch.Tensor) -> torch.Tensor:
     return model.ae.decode(model.anchor_latent(proxy_latent))
 
 
-@torch.no_grad()
-def refine_video(model, proxy_video: torch.Tensor, cfg: dict, generator=None, num_samples: int | None = None,
-                 correction_blur_px: float | None = None, **kw) -> torch.Tensor:
-    """(B, 3, N, H, W) proxy in [-1, 1] -> refined video in [-1, 1] on the CPU, same N (padding per
-    config; a clip shorter than a fixed window is repeated to it). Runs on the model's device.
+def _corrects(model, cfg: dict, residual_scale: float | None) -> bool:
+    """Whether the refined clip carries a transformer correction on top of a proxy anchor (what the correction
+    blur acts on)."""
+    rs = float(cfg["infer"].get("residual_scale", 1.0) if residual_scale is None else residual_scale)
+    return rs > 0 and getattr(model, "proxy_anchor", "none") != "none"
 
-    ``num_samples`` (default ``infer.num_samples``): the output is the mean of that many decoded
-    samples, drawn one after the other with ``generator`` (pixel space, so any autoencoder works).
-    ``correction_blur_px`` (default ``infer.correction_blur_px``): :func:`blur_correction` on that mean,
-    for a model with a proxy anchor and a residual scale above 0.
-    """
+
+@torch.no_grad()
+def refine_parts(model, proxy_video: torch.Tensor, cfg: dict, generator=None, num_samples: int | None = None,
+                 with_anchor: bool = True, **kw) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The refined clip before any correction blur -- the mean of ``num_samples`` (default ``infer.num_samples``)
+    decoded samples drawn one after the other with ``generator``, clamped to [-1, 1] -- and the anchor's own
+    output (:func:`anchor_video`, clamped) when ``with_anchor`` and the clip carries a correction to blur, else
+    None. (B, 3, N, H, W) on the model's device; ``kw`` goes to :func:`sample_latent`. Selection samples once
+    and scores every blur."""
     from .frames import pad_to_4k1, pad_to_latent_frames
 
     k = int(cfg["infer"].get("num_samples", 1) if num_samples is None else num_samples)
@@ -173,10 +197,30 @@ def refine_video(model, proxy_video: torch.Tensor, cfg: dict, generator=None, nu
     for _ in range(k):
         out = model.ae.decode(sample_latent(model, zp, cfg, generator=generator, **kw))[:, :, :n]
         acc = out if acc is None else acc + out
-    out = (acc / k).clamp(-1, 1)
-    sigma = float(cfg["infer"].get("correction_blur_px", 0.0) if correction_blur_px is None else correction_blur_px)
-    rs = kw.get("residual_scale")
-    rs = float(cfg["infer"].get("residual_scale", 1.0) if rs is None else rs)
-    if sigma > 0 and rs > 0 and getattr(model, "proxy_anchor", "none") != "none":
-        out = blur_correction(out, anchor_video(model, zp)[:, :, :n].clamp(-1, 1), sigma).clamp(-1, 1)
+    anchor = None
+    if with_anchor and _corrects(model, cfg, kw.get("residual_scale")):
+        anchor = anchor_video(model, zp)[:, :, :n].clamp(-1, 1)
+    return (acc / k).clamp(-1, 1), anchor
+
+
+@torch.no_grad()
+def refine_video(model, proxy_video: torch.Tensor, cfg: dict, generator=None, num_samples: int | None = None,
+                 correction_blur_px: float | None = None, correction_blur_frames: float | None = None,
+                 **kw) -> torch.Tensor:
+    """(B, 3, N, H, W) proxy in [-1, 1] -> refined video in [-1, 1] on the CPU, same N (padding per
+    config; a clip shorter than a fixed window is repeated to it). Runs on the model's device.
+
+    ``num_samples`` (default ``infer.num_samples``): the output is the mean of that many decoded
+    samples, drawn one after the other with ``generator`` (pixel space, so any autoencoder works).
+    ``correction_blur_px`` / ``correction_blur_frames`` (default ``infer.*``): :func:`blur_correction` on that
+    mean, for a model with a proxy anchor and a residual scale above 0.
+    """
+    inf = cfg["infer"]
+    sigma_px = float(inf.get("correction_blur_px", 0.0) if correction_blur_px is None else correction_blur_px)
+    sigma_t = float(inf.get("correction_blur_frames", 0.0) if correction_blur_frames is None
+                    else correction_blur_frames)
+    out, anchor = refine_parts(model, proxy_video, cfg, generator=generator, num_samples=num_samples,
+                               with_anchor=sigma_px > 0 or sigma_t > 0, **kw)
+    if anchor is not None:
+        out = blur_correction(out, anchor, sigma_px, sigma_t).clamp(-1, 1)
     return out.cpu()

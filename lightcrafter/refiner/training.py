@@ -415,7 +415,8 @@ def save_model(path: Path, weights: dict, ae, cfg: dict) -> None:
     save_checkpoint(path, {**weights, "ae": ae.state_dict(), "config": cfg})
 
 
-SELECTED_INFER_KEYS = ("strength", "guidance_scale", "residual_scale", "correction_blur_px")
+SELECTED_INFER_KEYS = ("strength", "guidance_scale", "residual_scale", "correction_blur_px",
+                       "correction_blur_frames")
 
 
 def load_model(path, cfg_overrides: dict | None = None, apply_selection: bool = True, device=None) -> Refiner:
