@@ -254,16 +254,19 @@ def test_cost_projection_says_when_the_measured_renders_used_other_oidn_networks
 
 
 def test_selection_section_says_what_validation_refused():
-    """The report's selection table gives each variant's choice with its block-grid and Warp-SSIM ratios and how
-    many candidates were within the limits; a variant without selection says why."""
+    """The report's selection table gives each variant's choice with its correction blur, its block-grid, 4-frame
+    jump and Warp-SSIM ratios and how many candidates were within the limits; a variant without selection says
+    why."""
     from lightcrafter.report import _selection_section
 
     chosen = {"step": 25, "strength": 0.1, "guidance_scale": 1.0, "residual_scale": 0.0, "metric": "psnr_db",
-              "value": 20.49, "block_ratio": 1.0016, "warp_ssim_ratio": 1.0046}
+              "value": 20.49, "block_ratio": 1.0016, "warp_ssim_ratio": 1.0046, "jump_ratio": 0.9961,
+              "correction_blur_px": 4.0, "correction_blur_frames": 1.0}
     evals = {("full", "synthetic"): {"inference": {"selection": {"chosen": chosen, "candidates": 3,
                                                                  "admissible_candidates": 1,
                                                                  "val_proxy": {"psnr_db": 20.81}}}},
              ("no_real", "synthetic"): {"inference": {"selection": {"chosen": None, "note": "selection off"}}}}
     html = _selection_section(evals)
     assert "<td>1 of 3</td>" in html and "<td>1.005</td>" in html and "<td>1.002</td>" in html
+    assert "<td>0.9961</td>" in html and "<td>4 px, 1 frame</td>" in html
     assert "<td>selection off</td>" in html and "None" not in html

@@ -143,10 +143,11 @@ def _selection_section(evals: dict) -> str:
             continue
         rows.append({"variant": v, "step": ch.get("step"), "strength": ch.get("strength"),
                      "guidance": ch.get("guidance_scale"), "residual": ch.get("residual_scale", 1.0),
-                     "blur_px": ch.get("correction_blur_px", 0.0),
+                     "blur": _blur_cell(ch.get("correction_blur_px", 0.0), ch.get("correction_blur_frames", 0.0)),
                      "val_refined_db": ch.get("value") if ch.get("metric") == "psnr_db" else None,
                      "val_proxy_db": (sel.get("val_proxy") or {}).get("psnr_db"),
-                     "val_block_ratio": ch.get("block_ratio"), "val_warp_ssim_ratio": ch.get("warp_ssim_ratio"),
+                     "val_block_ratio": ch.get("block_ratio"), "val_jump_ratio": ch.get("jump_ratio"),
+                     "val_warp_ssim_ratio": ch.get("warp_ssim_ratio"),
                      "admissible": _admissible_count(sel), "note": sel.get("note")})
     if not rows:
         return ""
@@ -154,15 +155,23 @@ def _selection_section(evals: dict) -> str:
             "full refiner; residual 0 = the learned anchor of the proxy alone (a colour map and a small kernel, "
             "refiner.model.anchor_space), chosen when the transformer's correction scored lower on validation or "
             "every candidate with it was refused; a residual in between adds the transformer's correction at that "
-            "weight (refiner.select.residual_scales); blur px: the Gaussian on the transformer's correction, in "
-            "pixels (refiner.select.correction_blurs_px; 0 = none). Admissible: candidates within "
-            "refiner.select.max_block_ratio, "
-            "the block grid over the proxy's, and refiner.select.min_warp_ssim_ratio, the Warp-SSIM over the "
-            "proxy's.</p>"
-            + _table(rows, ["variant", "step", "strength", "guidance", "residual", "blur_px", "val_refined_db",
-                            "val_proxy_db", "val_block_ratio", "val_warp_ssim_ratio", "admissible", "note"],
-                     labels={"blur_px": "blur px", "val_refined_db": "validation dB", "val_proxy_db": "proxy dB",
-                             "val_block_ratio": "block grid ratio", "val_warp_ssim_ratio": "Warp-SSIM ratio"}))
+            "weight (refiner.select.residual_scales); blur: the Gaussian on the transformer's correction, in "
+            "pixels and in frames (refiner.select.correction_blurs_px, correction_blurs_frames; 0 = none). "
+            "Admissible: candidates within refiner.select.max_block_ratio, the block grid over the proxy's, "
+            "refiner.select.max_jump_ratio, the 4-frame jump over the target's, and "
+            "refiner.select.min_warp_ssim_ratio, the Warp-SSIM over the proxy's.</p>"
+            + _table(rows, ["variant", "step", "strength", "guidance", "residual", "blur", "val_refined_db",
+                            "val_proxy_db", "val_block_ratio", "val_jump_ratio", "val_warp_ssim_ratio", "admissible",
+                            "note"],
+                     labels={"val_refined_db": "validation dB", "val_proxy_db": "proxy dB",
+                             "val_block_ratio": "block grid ratio", "val_jump_ratio": "4-frame jump ratio",
+                             "val_warp_ssim_ratio": "Warp-SSIM ratio"}))
+
+
+def _blur_cell(px: float, frames: float) -> str:
+    """The correction's blur as the selection table shows it: '0', '4 px', '4 px, 1 frame(s)'."""
+    parts = ([f"{px:g} px"] if px else []) + ([f"{frames:g} frame" + ("" if frames == 1 else "s")] if frames else [])
+    return ", ".join(parts) or "0"
 
 
 def _admissible_count(sel: dict) -> str | None:
