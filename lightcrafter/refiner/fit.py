@@ -228,7 +228,7 @@ def select_on_validation(cfg: dict, out_dir: Path, steps: list[int], ae_state: d
     max_steps = int(cfg["train"]["max_steps"])
     table = []
     limits = _limits(sel)
-    lim = {k for k, _b, _kind in limits}
+    lim = [k for k, _b, _kind in limits]  # the table keys the limits need, in the limits' order
     flow_cache: dict | None = {} if "warp_ssim_ratio" in lim else None
     all_blurs = sorted(itertools.product(sorted(sel["correction_blurs_px"]), sorted(sel["correction_blurs_frames"])))
     for step in steps:
@@ -245,14 +245,13 @@ def select_on_validation(cfg: dict, out_dir: Path, steps: list[int], ae_state: d
                 row = {"step": step, "strength": float(s), "guidance_scale": float(g), "residual_scale": float(rs),
                        "correction_blur_px": float(bl), "correction_blur_frames": float(bf),
                        "psnr_db": sc["psnr_db"], "ssim": sc["ssim"], "seconds_per_clip": sc["seconds_per_clip"]}
-                row.update({k: sc[k] for k in ("block_ratio", "jump_ratio", "warp_ssim_ratio") if k in lim})
+                row.update({k: sc[k] for k in lim})
                 if limits:
                     row["admissible"] = _within_limits(row, limits)
                 table.append(row)
                 log.info("validation step %d strength %.2f guidance %.1f residual %.1f blur %.1f px %.1f frames: "
                          "%.3f dB, SSIM %.4f%s", step, s, g, rs, bl, bf, sc["psnr_db"], sc["ssim"],
-                         "".join(f", {k} {sc[k]:.3f}" for k in ("block_ratio", "jump_ratio", "warp_ssim_ratio")
-                                 if k in lim))
+                         "".join(f", {k} {sc[k]:.3f}" for k in lim))
     metric = sel["metric"]
     within = [r for r in table if r.get("admissible", True)]
     pool = within
@@ -265,7 +264,7 @@ def select_on_validation(cfg: dict, out_dir: Path, steps: list[int], ae_state: d
                                     r["residual_scale"], -r["correction_blur_px"], -r["correction_blur_frames"]))
     chosen = {"step": best["step"], "metric": metric, "value": best[metric],
               **{k: best[k] for k in SELECTED_INFER_KEYS}}
-    chosen.update({k: best[k] for k in ("block_ratio", "jump_ratio", "warp_ssim_ratio") if k in best})
+    chosen.update({k: best[k] for k in lim})
     proxy = score_method(lambda item: item["proxy"], val_ds)
     log.info("chosen on validation: %s (proxy alone %.3f dB)", chosen, proxy["psnr_db"])
     return {"chosen": chosen, "table": table, "val_proxy": {k: proxy[k] for k in ("psnr_db", "ssim")},

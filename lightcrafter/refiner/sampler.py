@@ -117,15 +117,20 @@ def sample_latent(
     return z
 
 
+def _gaussian_taps(sigma: float, dtype, device) -> tuple[int, torch.Tensor]:
+    """Radius (3 sigma, at least 1) and the normalised taps of a 1-D Gaussian of ``sigma`` samples."""
+    r = max(1, int(round(3.0 * sigma)))
+    t = torch.arange(-r, r + 1, dtype=dtype, device=device)
+    g = torch.exp(-0.5 * (t / sigma) ** 2)
+    return r, g / g.sum()
+
+
 def gaussian_blur(frames: torch.Tensor, sigma_px: float) -> torch.Tensor:
     """(N, C, H, W) frames blurred by a Gaussian of ``sigma_px`` pixels (separable, 3 sigma radius, edges
     replicated)."""
     import torch.nn.functional as F
 
-    r = max(1, int(round(3.0 * sigma_px)))
-    t = torch.arange(-r, r + 1, dtype=frames.dtype, device=frames.device)
-    g = torch.exp(-0.5 * (t / sigma_px) ** 2)
-    g = g / g.sum()
+    r, g = _gaussian_taps(sigma_px, frames.dtype, frames.device)
     c = frames.shape[1]
     x = F.conv2d(F.pad(frames, (r, r, 0, 0), mode="replicate"), g.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
     return F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), g.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
@@ -134,14 +139,12 @@ def gaussian_blur(frames: torch.Tensor, sigma_px: float) -> torch.Tensor:
 def temporal_gaussian_blur(video: torch.Tensor, sigma_frames: float) -> torch.Tensor:
     """(B, C, N, H, W) video blurred along its frames by a Gaussian of ``sigma_frames`` frames (3 sigma radius,
     the first and last frames repeated beyond the clip's ends)."""
-    r = max(1, int(round(3.0 * sigma_frames)))
-    t = torch.arange(-r, r + 1, device=video.device)
-    g = torch.exp(-0.5 * (t.to(video.dtype) / sigma_frames) ** 2)
-    g = g / g.sum()
+    r, g = _gaussian_taps(sigma_frames, video.dtype, video.device)
     n = video.shape[2]
+    frames = torch.arange(n, device=video.device)
     out = torch.zeros_like(video)
-    for k, w in zip(t.tolist(), g):
-        out += w * video[:, :, (torch.arange(n, device=video.device) + k).clamp(0, n - 1)]
+    for k, w in zip(range(-r, r + 1), g):
+        out += w * video[:, :, (frames + k).clamp(0, n - 1)]
     return out
 
 
