@@ -47,12 +47,13 @@ GUIDANCES = [1.0, 2.0, 4.0, 6.0]
 
 
 def _cfg_from_yaml(path: Path, overrides: dict) -> dict:
-    import yaml
-
+    """The resolved ``refiner:`` section of a pipeline config file, its ``extends`` chain followed (a file such as
+    config/study.yaml holds only what it changes), with ``overrides`` merged over it."""
+    from lightcrafter.config import read_configfile
     from lightcrafter.refiner import resolve_config
     from lightcrafter.refiner.config import _merge
 
-    user = (yaml.safe_load(path.read_text()) or {}).get("refiner", {})
+    user = read_configfile(path).get("refiner", {})
     base = {k: v for k, v in user.items() if k != "resources"}
     return resolve_config(_merge(resolve_config(base), overrides)) if overrides else resolve_config(base)
 

@@ -155,3 +155,21 @@ def test_scale_benchmark_keeps_validation_fixed_while_data_and_model_size_vary(t
             assert s["val_refined_minus_proxy_db"] == pytest.approx(s["val_refined_psnr_db"] - r["val_proxy_psnr_db"],
                                                                     abs=2e-3)
             assert np.isfinite(s["fit_refined_minus_proxy_db"]) and np.isfinite(s["val_anchor_psnr_db"])
+
+
+def test_benchmarks_read_a_study_configs_refiner_through_its_extends_chain():
+    """benchmarks/refiner_scale.py --config config/study.yaml: the study file holds only what it changes, so its
+    refiner is config.yaml's with the study's keys over it, not the library's defaults with the study's keys."""
+    import yaml
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from refiner_small_scale import _cfg_from_yaml
+
+    repo = Path(__file__).resolve().parents[1]
+    default = yaml.safe_load((repo / "config/config.yaml").read_text())["refiner"]
+    study = yaml.safe_load((repo / "config/study.yaml").read_text())["refiner"]
+    cfg = _cfg_from_yaml(repo / "config/study.yaml", {"infer": {"num_steps": 3}})
+    assert cfg["train"]["max_steps"] == study["train"]["max_steps"] != default["train"]["max_steps"]
+    assert cfg["select"]["strengths"] == default["select"]["strengths"]  # config.yaml's, not in study.yaml
+    assert cfg["select"]["correction_blurs_frames"] == study["select"]["correction_blurs_frames"]
+    assert cfg["infer"]["num_steps"] == 3
