@@ -475,8 +475,8 @@ def _tag_outputs_with_their_residual_scale(fitmod, monkeypatch):
     (``out.residual``, ``out.blur``, ``out.blur_frames``), so a test can fake a metric per kind of candidate."""
     real_refine_blurs_fn = fitmod.refine_blurs_fn
 
-    def tagged(model, cfg, strength, guidance_scale, residual_scale, blurs):
-        fn = real_refine_blurs_fn(model, cfg, strength, guidance_scale, residual_scale, blurs)
+    def tagged(model, cfg, strength, guidance_scale, residual_scale, blurs, num_steps=None):
+        fn = real_refine_blurs_fn(model, cfg, strength, guidance_scale, residual_scale, blurs, num_steps)
 
         def run(item):
             outs = fn(item)
@@ -644,7 +644,7 @@ def test_selection_chooses_the_correction_blur_and_inference_applies_it(tmp_path
 
     _tag_outputs_with_their_residual_scale(fitmod, monkeypatch)
     monkeypatch.setattr(fitmod, "block_ratio", lambda out, proxy: 1.0 if out.residual and out.blur else 2.0)
-    monkeypatch.setattr(fitmod, "jump_ratio", lambda out, target: 1.0 if out.blur_frames else 1.5)
+    monkeypatch.setattr(fitmod, "jump_ratio", lambda out, target, target_jump=None: 1.0 if out.blur_frames else 1.5)
     samples = []
     real_parts = fitmod.refine_parts
     monkeypatch.setattr(fitmod, "refine_parts", lambda *a, **k: samples.append(k["residual_scale"]) or
@@ -674,3 +674,12 @@ def test_selection_chooses_the_correction_blur_and_inference_applies_it(tmp_path
     anchor = anchor_video(model, model.ae.encode(item["proxy"][None])).clamp(-1, 1)
     assert torch.allclose(got, blur_correction(raw, anchor, 3.0, 1.0).clamp(-1, 1), atol=1e-5)
     assert not torch.allclose(got, raw, atol=1e-3)
+    # what benchmarks score (fit.refine_fn, blurs from infer) is what inference makes, to the bit
+    assert torch.equal(fitmod.refine_fn(model, model.cfg, 0.5, 1.0)(item),
+                       refine_video(model, item["proxy"][None], model.cfg, strength=0.5, guidance_scale=1.0,
+                                    generator=torch.Generator().manual_seed(model.cfg["seed"]))[0])
+    # a grid without 0: the anchor alone's row records no blur (it has no correction to blur)
+    cfg["select"].update(correction_blurs_px=[3.0], correction_blurs_frames=[1.0], max_jump_ratio=None)
+    res = fitmod.fit_refiner(cfg, pairs, tmp_path / "m2", progress=False)["selection"]
+    assert sorted((r["residual_scale"], r["correction_blur_px"], r["correction_blur_frames"]) for r in res["table"]) \
+        == [(0.0, 0.0, 0.0), (1.0, 3.0, 1.0)]

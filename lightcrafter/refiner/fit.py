@@ -44,7 +44,7 @@ from lightcrafter.io import DataError
 from .baselines import apply_affine_colour, fit_affine_colour, regress_video
 from .data import PairsDataset, read_pairs
 from .model import Refiner
-from .sampler import blur_correction, refine_parts, refine_video
+from .sampler import blur_correction, refine_parts, resolved_residual_scale
 from .scoring import clip_scores
 from .training import SELECTED_INFER_KEYS, load_model, run_fingerprint, save_checkpoint, snapshot_path, train
 from .validation import carve_validation, pair_group
@@ -78,6 +78,10 @@ def score_variants(fn, dataset, block_grid: bool = False, temporal: dict | None 
     """:func:`score_method` for ``fn(item) -> {key: (3, N, H, W)}``, several outputs made from one run over a
     clip (e.g. one sample and each correction blur applied to it): ``{key: scores}``, every key's seconds per
     clip being that shared run's. ``jump``: also ``jump_ratio``, the mean over pairs of :func:`jump_ratio`."""
+    from lightcrafter.evaluation import block_jump
+
+    from .data import to_display_frames
+
     rows: dict = {}
     secs = []
     for i in range(len(dataset)):
@@ -85,6 +89,7 @@ def score_variants(fn, dataset, block_grid: bool = False, temporal: dict | None 
         t0 = time.perf_counter()
         outs = fn(item)
         secs.append(time.perf_counter() - t0)
+        target_jump = block_jump(to_display_frames(item["target"])).value if jump else None
         for key, out in outs.items():
             row = {"pair_id": item["pair_id"], **clip_scores(out, item["target"])}
             if block_grid:
@@ -92,7 +97,7 @@ def score_variants(fn, dataset, block_grid: bool = False, temporal: dict | None 
             if temporal is not None:
                 row["warp_ssim_ratio"] = warp_ssim_ratio(out, item, temporal)
             if jump:
-                row["jump_ratio"] = jump_ratio(out, item["target"])
+                row["jump_ratio"] = jump_ratio(out, item["target"], target_jump)
             rows.setdefault(key, []).append(row)
     res = {}
     for key, kr in rows.items():
@@ -146,39 +151,42 @@ def block_ratio(video, proxy) -> float:
     return float(max(ratios)) if ratios else 1.0
 
 
-def jump_ratio(video, target) -> float:
+def jump_ratio(video, target, target_jump: float | None = None) -> float:
     """Temporal steps of a refined clip at the autoencoder's 4-frame blocks relative to its target's: the
     :func:`lightcrafter.evaluation.block_jump` of ``video`` over that of ``target`` (1 = the target's; the
     refiner's goal is within 10 %). A clip without an answer (too short, no change between boundaries) counts
-    as 1. Both (3, N, H, W) in [-1, 1]."""
+    as 1. Both (3, N, H, W) in [-1, 1]. ``target_jump``: the target's own jump when already computed (one per
+    clip for every output scored against it)."""
     from lightcrafter.evaluation import block_jump
 
     from .data import to_display_frames
 
-    ra, rb = block_jump(to_display_frames(video)).value, block_jump(to_display_frames(target)).value
+    ra = block_jump(to_display_frames(video)).value
+    rb = block_jump(to_display_frames(target)).value if target_jump is None else target_jump
     return float(ra / rb) if ra is not None and rb else 1.0
 
 
 def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None,
               residual_scale: float | None = None, correction_blur_px: float | None = None):
-    """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``)."""
-    def fn(item):
-        gen = torch.Generator().manual_seed(cfg["seed"])
-        return refine_video(model, item["proxy"][None], cfg, generator=gen, strength=strength,
-                            guidance_scale=guidance_scale, num_steps=num_steps, residual_scale=residual_scale,
-                            correction_blur_px=correction_blur_px)[0]
-    return fn
+    """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``); the
+    residual scale and the correction's blurs default to ``infer``'s. :func:`refine_blurs_fn` with one blur."""
+    inf = cfg["infer"]
+    blur = (float(inf.get("correction_blur_px", 0.0) if correction_blur_px is None else correction_blur_px),
+            float(inf.get("correction_blur_frames", 0.0)))
+    fn = refine_blurs_fn(model, cfg, strength, guidance_scale, resolved_residual_scale(cfg, residual_scale), [blur],
+                         num_steps=num_steps)
+    return lambda item: fn(item)[blur]
 
 
 def refine_blurs_fn(model, cfg: dict, strength: float, guidance_scale: float, residual_scale: float,
-                    blurs: list[tuple[float, float]]):
+                    blurs: list[tuple[float, float]], num_steps: int | None = None):
     """A clip -> ``{(correction_blur_px, correction_blur_frames): refined clip}`` function: the clip sampled once
     with the run's per-clip seed, then each correction blur applied to that sample -- what
     ``scripts/infer_refiner.py`` makes with that blur, at the cost of one sample."""
     def fn(item):
         gen = torch.Generator().manual_seed(cfg["seed"])
         out, anchor = refine_parts(model, item["proxy"][None], cfg, generator=gen, strength=strength,
-                                   guidance_scale=guidance_scale, residual_scale=residual_scale,
+                                   guidance_scale=guidance_scale, residual_scale=residual_scale, num_steps=num_steps,
                                    with_anchor=any(px > 0 or fr > 0 for px, fr in blurs))
         return {(px, fr): (out if anchor is None else blur_correction(out, anchor, px, fr).clamp(-1, 1)).cpu()[0]
                 for px, fr in blurs}
@@ -237,8 +245,8 @@ def select_on_validation(cfg: dict, out_dir: Path, steps: list[int], ae_state: d
                                           sorted(sel["residual_scales"], reverse=True)):
             if float(rs) == 0.0 and (float(g) != min(sel["guidance_scales"]) or float(s) != min(sel["strengths"])):
                 continue  # the anchor alone ignores guidance and, to rounding, strength: score it once per step,
-                # at the smallest of each (and of the correction's blurs: it has no correction to blur)
-            blurs = all_blurs[:1] if float(rs) == 0.0 else all_blurs
+                # at the smallest of each
+            blurs = [(0.0, 0.0)] if float(rs) == 0.0 else all_blurs  # the anchor alone has no correction to blur
             scores = score_variants(refine_blurs_fn(model, cfg, float(s), float(g), float(rs), blurs), val_ds,
                                     block_grid="block_ratio" in lim, temporal=flow_cache, jump="jump_ratio" in lim)
             for (bl, bf), sc in scores.items():

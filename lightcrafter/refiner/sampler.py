@@ -73,7 +73,7 @@ def sample_latent(
     num_steps = num_steps or inf["num_steps"]
     gs = inf["guidance_scale"] if guidance_scale is None else guidance_scale
     strength = float(inf.get("strength", 1.0) if strength is None else strength)
-    rs = float(inf.get("residual_scale", 1.0) if residual_scale is None else residual_scale)
+    rs = resolved_residual_scale(cfg, residual_scale)
     window = window or inf["window"]
     overlap = inf["overlap"] if overlap is None else overlap
     if init_noise is None:
@@ -174,11 +174,15 @@ def anchor_video(model, proxy_latent: torch.Tensor) -> torch.Tensor:
     return model.ae.decode(model.anchor_latent(proxy_latent))
 
 
+def resolved_residual_scale(cfg: dict, residual_scale: float | None) -> float:
+    """``residual_scale``, or ``infer.residual_scale`` (default 1) when None."""
+    return float(cfg["infer"].get("residual_scale", 1.0) if residual_scale is None else residual_scale)
+
+
 def _corrects(model, cfg: dict, residual_scale: float | None) -> bool:
     """Whether the refined clip carries a transformer correction on top of a proxy anchor (what the correction
     blur acts on)."""
-    rs = float(cfg["infer"].get("residual_scale", 1.0) if residual_scale is None else residual_scale)
-    return rs > 0 and getattr(model, "proxy_anchor", "none") != "none"
+    return resolved_residual_scale(cfg, residual_scale) > 0 and getattr(model, "proxy_anchor", "none") != "none"
 
 
 @torch.no_grad()
