@@ -11,8 +11,8 @@ validation clips. This benchmark runs that fit once per (model size, fit groups)
 * steps: one training run to ``--max-steps`` keeps candidates at ``--steps``.
 
 For every run and step it records, on the validation clips: the proxy alone, the learned anchor alone
-(residual scale 0) and the full refiner (residual scale 1), each at its best strength and guidance of
-``select``; and, at that setting, the full refiner on up to ``--max-fit-clips`` of the clips it was trained
+(residual scale 0) and the full refiner (residual scale 1), each at its best strength, guidance and correction
+blurs of ``select``; and, at that setting, the full refiner on up to ``--max-fit-clips`` of the clips it was trained
 on. Refined minus proxy on the fit clips against the validation clips tells "cannot fit even its training
 clips" (more steps or a larger model would help) from "fits them but does not carry over to unseen
 scenes" (more data would). Test clips are never read. Writes results/bench/NAME.json and prints a table::
@@ -124,9 +124,12 @@ def main() -> int:
                 full = best[1.0]
                 model = _candidate_model(cfg, d, step, a.max_steps, ae_state)
                 on_fit = score_method(refine_fn(model, cfg, full["strength"], full["guidance_scale"],
-                                                residual_scale=1.0), fit_ds)
+                                                residual_scale=1.0, correction_blur_px=full["correction_blur_px"],
+                                                correction_blur_frames=full["correction_blur_frames"]), fit_ds)
                 rows.append({
                     "step": step, "strength": full["strength"], "guidance_scale": full["guidance_scale"],
+                    "correction_blur_px": full["correction_blur_px"],
+                    "correction_blur_frames": full["correction_blur_frames"],
                     "val_refined_psnr_db": round(full["psnr_db"], 3), "val_refined_ssim": round(full["ssim"], 4),
                     "val_anchor_psnr_db": round(best[0.0]["psnr_db"], 3),
                     "val_refined_minus_proxy_db": round(full["psnr_db"] - proxy_val["psnr_db"], 3),

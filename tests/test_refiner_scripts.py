@@ -138,7 +138,8 @@ def test_scale_benchmark_keeps_validation_fixed_while_data_and_model_size_vary(t
                  "split": "test"})
     write_jsonl(tmp_path / "pairs.jsonl", recs)
     cfg = {"model": {"ae_coeffs": [8, 4, 4]}, "infer": {"num_steps": 2},
-           "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0], "max_val_pairs": 1}}
+           "select": {"val_scenes": 1, "strengths": [0.5], "guidance_scales": [1.0], "max_val_pairs": 1,
+                      "correction_blurs_px": [0.0, 2.0]}}
     bench = Path(__file__).resolve().parents[1] / "benchmarks" / "refiner_scale.py"
     _run(bench, "--pairs", "pairs.jsonl", "--config-json", json.dumps(cfg), "--layers", "1", "2", "--fit-groups", "1",
          "0", "--max-steps", "2", "--steps", "1", "--out", "scale.json", cwd=tmp_path)
@@ -152,6 +153,7 @@ def test_scale_benchmark_keeps_validation_fixed_while_data_and_model_size_vary(t
     for r in runs:
         assert [s["step"] for s in r["steps"]] == [1, 2]
         for s in r["steps"]:
+            assert s["correction_blur_px"] in (0.0, 2.0) and s["correction_blur_frames"] == 0.0  # from the grid
             assert s["val_refined_minus_proxy_db"] == pytest.approx(s["val_refined_psnr_db"] - r["val_proxy_psnr_db"],
                                                                     abs=2e-3)
             assert np.isfinite(s["fit_refined_minus_proxy_db"]) and np.isfinite(s["val_anchor_psnr_db"])

@@ -167,12 +167,14 @@ def jump_ratio(video, target, target_jump: float | None = None) -> float:
 
 
 def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_steps: int | None = None,
-              residual_scale: float | None = None, correction_blur_px: float | None = None):
+              residual_scale: float | None = None, correction_blur_px: float | None = None,
+              correction_blur_frames: float | None = None):
     """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``); the
     residual scale and the correction's blurs default to ``infer``'s. :func:`refine_blurs_fn` with one blur."""
     inf = cfg["infer"]
     blur = (float(inf.get("correction_blur_px", 0.0) if correction_blur_px is None else correction_blur_px),
-            float(inf.get("correction_blur_frames", 0.0)))
+            float(inf.get("correction_blur_frames", 0.0) if correction_blur_frames is None
+                  else correction_blur_frames))
     fn = refine_blurs_fn(model, cfg, strength, guidance_scale, resolved_residual_scale(cfg, residual_scale), [blur],
                          num_steps=num_steps)
     return lambda item: fn(item)[blur]

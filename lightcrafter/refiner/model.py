@@ -190,7 +190,9 @@ def build_transformer(cfg: dict, latent_channels: int, param_dtype: torch.dtype 
     if m["kind"] == "tiny":
         kwargs = dict(m["transformer"])
         kwargs.update(in_channels=2 * latent_channels, out_channels=latent_channels)
-        net = CogVideoXTransformer3DModel(**kwargs).to(param_dtype)
+        net = CogVideoXTransformer3DModel(**kwargs)  # float32 as built
+        if param_dtype != torch.float32:  # diffusers warns on every dtype cast, needed or not
+            net = net.to(param_dtype)
     elif m["kind"] == "paper":
         from .checkpoint import read_servable
 
