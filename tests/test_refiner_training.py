@@ -27,6 +27,14 @@ def test_resume_is_bit_for_bit(tmp_path):
     assert "resumed from" in (tmp_path / "b" / "train.log").read_text()
     curve = json.loads((tmp_path / "a" / "loss_curve.json").read_text())
     assert curve["loss_per_optimizer_step"] == straight
+    # seconds per step over the whole training: a killed-and-resumed run counts both calls' steps, and a call on a
+    # finished run (nothing left to train) keeps the figure instead of recording the ~0 s of loading a checkpoint
+    timed = json.loads((tmp_path / "b" / "loss_curve.json").read_text())["seconds_per_optimizer_step"]
+    assert timed > 1e-3 and timed == pytest.approx(curve["seconds_per_optimizer_step"], rel=2.0)
+    again = train(cfg, ToyDataset(3), tmp_path / "b", progress=False)
+    assert again["losses"] == straight and again["seconds_per_step"] == pytest.approx(timed, rel=0.5)
+    assert json.loads((tmp_path / "b" / "loss_curve.json").read_text())["seconds_per_optimizer_step"] == \
+        pytest.approx(timed, rel=0.5)
 
 
 def test_resume_with_data_loading_workers_is_bit_for_bit(tmp_path):

@@ -196,7 +196,8 @@ def run_fingerprint(cfg: dict, dataset, objective: str = "diffusion") -> str:
 
 def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progress: bool = True,
           objective: str = "diffusion", snapshot_steps=(), final_name: str = "model.pt") -> dict:
-    """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float,
+    """Train (or resume) in ``out_dir``; returns {"losses": [...], "step": int, "seconds_per_step": float (wall
+    seconds per optimizer step over the whole training, resumed calls included; also loss_curve.json's),
     "step_seconds": [wall seconds of each optimizer step of this call], "rank": this process's
     data-parallel rank (0 alone writes files)}.
 
@@ -239,6 +240,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     rank, main = acc.process_index, acc.is_main_process
     gen = torch.Generator().manual_seed(cfg["seed"] + rank)
     step, losses, drawn = 0, [], 0
+    seconds_before = 0.0  # wall seconds of the optimizer steps of earlier (killed or finished) calls
 
     fingerprint = run_fingerprint(cfg, dataset, objective)
     ckpt = latest_checkpoint(out_dir)
@@ -268,6 +270,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
         np.random.set_state(st["numpy_rng"])
         random.setstate(st["python_rng"])
         step, losses = st["step"], list(st["losses"])
+        seconds_before = st.get("train_seconds")  # None: a checkpoint written before the key was
         drawn = int(own.get("pairs_drawn", 0))
         log.info("resumed from %s at step %d", ckpt.name, step)
     elif cfg["model"]["anchor_init"] == "affine_colour" and isinstance(model.anchor_map, PixelAnchor):
@@ -315,6 +318,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
             "step": step,
             "pairs_drawn": drawn,
             "losses": losses,
+            "train_seconds": None if seconds_before is None else seconds_before + time.perf_counter() - t_start,
             "config": cfg,
             "fingerprint": fingerprint,
         }
@@ -400,13 +404,17 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
             checkpoint()
     bar.close()
     del pairs  # stops the worker processes
-    sec = (time.perf_counter() - t_start) / max(done_here, 1)
+    sec_here = (time.perf_counter() - t_start) / max(done_here, 1)
+    # per optimizer step over the whole training, earlier calls included: a call that resumes a finished run (or
+    # one killed after its last step) does no step, and its own mean would be the ~0 s of loading the checkpoint
+    sec = sec_here if seconds_before is None or step == 0 else \
+        (seconds_before + time.perf_counter() - t_start) / step
     acc.wait_for_everyone()
     if step >= tr["max_steps"] and main:
         save_model(out_dir / final_name, model.weights(acc.unwrap_model(model.transformer)), model.ae, cfg)
         with atomic_path(out_dir / "loss_curve.json") as tmp:
             tmp.write_text(json.dumps({"loss_per_optimizer_step": losses, "seconds_per_optimizer_step": sec}))
-    log.info("stopped at step %d (%.3f s/optimizer step this run)", step, sec)
+    log.info("stopped at step %d (%.3f s/optimizer step this run, %.3f over the whole training)", step, sec_here, sec)
     return {"losses": losses, "step": step, "seconds_per_step": sec, "step_seconds": step_seconds, "rank": rank}
 
 
