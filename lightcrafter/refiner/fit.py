@@ -44,7 +44,7 @@ from lightcrafter.io import DataError
 from .baselines import apply_affine_colour, fit_affine_colour, regress_video
 from .data import PairsDataset, read_pairs
 from .model import Refiner
-from .sampler import blur_correction, refine_parts, resolved_residual_scale
+from .sampler import blur_correction, refine_parts, resolved_correction_blurs, resolved_residual_scale
 from .scoring import clip_scores
 from .training import SELECTED_INFER_KEYS, load_model, run_fingerprint, save_checkpoint, snapshot_path, train
 from .validation import carve_validation, pair_group
@@ -78,10 +78,6 @@ def score_variants(fn, dataset, block_grid: bool = False, temporal: dict | None 
     """:func:`score_method` for ``fn(item) -> {key: (3, N, H, W)}``, several outputs made from one run over a
     clip (e.g. one sample and each correction blur applied to it): ``{key: scores}``, every key's seconds per
     clip being that shared run's. ``jump``: also ``jump_ratio``, the mean over pairs of :func:`jump_ratio`."""
-    from lightcrafter.evaluation import block_jump
-
-    from .data import to_display_frames
-
     rows: dict = {}
     secs = []
     for i in range(len(dataset)):
@@ -89,7 +85,7 @@ def score_variants(fn, dataset, block_grid: bool = False, temporal: dict | None 
         t0 = time.perf_counter()
         outs = fn(item)
         secs.append(time.perf_counter() - t0)
-        target_jump = block_jump(to_display_frames(item["target"])).value if jump else None
+        target_jump = _block_jump_value(item["target"]) if jump else None
         for key, out in outs.items():
             row = {"pair_id": item["pair_id"], **clip_scores(out, item["target"])}
             if block_grid:
@@ -151,18 +147,23 @@ def block_ratio(video, proxy) -> float:
     return float(max(ratios)) if ratios else 1.0
 
 
+def _block_jump_value(video) -> float | None:
+    """:func:`lightcrafter.evaluation.block_jump` of a (3, N, H, W) clip in [-1, 1] (None: no answer)."""
+    from lightcrafter.evaluation import block_jump
+
+    from .data import to_display_frames
+
+    return block_jump(to_display_frames(video)).value
+
+
 def jump_ratio(video, target, target_jump: float | None = None) -> float:
     """Temporal steps of a refined clip at the autoencoder's 4-frame blocks relative to its target's: the
     :func:`lightcrafter.evaluation.block_jump` of ``video`` over that of ``target`` (1 = the target's; the
     refiner's goal is within 10 %). A clip without an answer (too short, no change between boundaries) counts
     as 1. Both (3, N, H, W) in [-1, 1]. ``target_jump``: the target's own jump when already computed (one per
     clip for every output scored against it)."""
-    from lightcrafter.evaluation import block_jump
-
-    from .data import to_display_frames
-
-    ra = block_jump(to_display_frames(video)).value
-    rb = block_jump(to_display_frames(target)).value if target_jump is None else target_jump
+    ra = _block_jump_value(video)
+    rb = _block_jump_value(target) if target_jump is None else target_jump
     return float(ra / rb) if ra is not None and rb else 1.0
 
 
@@ -171,10 +172,7 @@ def refine_fn(model, cfg: dict, strength: float, guidance_scale: float, num_step
               correction_blur_frames: float | None = None):
     """A clip -> refined clip function with the run's per-clip seed (as ``scripts/infer_refiner.py``); the
     residual scale and the correction's blurs default to ``infer``'s. :func:`refine_blurs_fn` with one blur."""
-    inf = cfg["infer"]
-    blur = (float(inf.get("correction_blur_px", 0.0) if correction_blur_px is None else correction_blur_px),
-            float(inf.get("correction_blur_frames", 0.0) if correction_blur_frames is None
-                  else correction_blur_frames))
+    blur = resolved_correction_blurs(cfg, correction_blur_px, correction_blur_frames)
     fn = refine_blurs_fn(model, cfg, strength, guidance_scale, resolved_residual_scale(cfg, residual_scale), [blur],
                          num_steps=num_steps)
     return lambda item: fn(item)[blur]

@@ -179,6 +179,13 @@ def resolved_residual_scale(cfg: dict, residual_scale: float | None) -> float:
     return float(cfg["infer"].get("residual_scale", 1.0) if residual_scale is None else residual_scale)
 
 
+def resolved_correction_blurs(cfg: dict, sigma_px: float | None, sigma_frames: float | None) -> tuple[float, float]:
+    """(``correction_blur_px``, ``correction_blur_frames``): each given value, or ``infer``'s (default 0) when None."""
+    inf = cfg["infer"]
+    return (float(inf.get("correction_blur_px", 0.0) if sigma_px is None else sigma_px),
+            float(inf.get("correction_blur_frames", 0.0) if sigma_frames is None else sigma_frames))
+
+
 def _corrects(model, cfg: dict, residual_scale: float | None) -> bool:
     """Whether the refined clip carries a transformer correction on top of a proxy anchor (what the correction
     blur acts on)."""
@@ -222,10 +229,7 @@ def refine_video(model, proxy_video: torch.Tensor, cfg: dict, generator=None, nu
     ``correction_blur_px`` / ``correction_blur_frames`` (default ``infer.*``): :func:`blur_correction` on that
     mean, for a model with a proxy anchor and a residual scale above 0.
     """
-    inf = cfg["infer"]
-    sigma_px = float(inf.get("correction_blur_px", 0.0) if correction_blur_px is None else correction_blur_px)
-    sigma_t = float(inf.get("correction_blur_frames", 0.0) if correction_blur_frames is None
-                    else correction_blur_frames)
+    sigma_px, sigma_t = resolved_correction_blurs(cfg, correction_blur_px, correction_blur_frames)
     out, anchor = refine_parts(model, proxy_video, cfg, generator=generator, num_samples=num_samples,
                                with_anchor=sigma_px > 0 or sigma_t > 0, **kw)
     if anchor is not None:

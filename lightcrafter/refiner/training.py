@@ -297,6 +297,9 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     from .frames import pad_to_latent_frames
     model.transformer.train()
 
+    def seconds_so_far() -> float | None:  # of the whole training; None after a checkpoint without the record
+        return None if seconds_before is None else seconds_before + time.perf_counter() - t_start
+
     def checkpoint():
         name = f"step_{step:07d}.pt"
         acc.wait_for_everyone()
@@ -318,7 +321,7 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
             "step": step,
             "pairs_drawn": drawn,
             "losses": losses,
-            "train_seconds": None if seconds_before is None else seconds_before + time.perf_counter() - t_start,
+            "train_seconds": seconds_so_far(),
             "config": cfg,
             "fingerprint": fingerprint,
         }
@@ -407,8 +410,8 @@ def train(cfg: dict, dataset, out_dir, *, stop_after: int | None = None, progres
     sec_here = (time.perf_counter() - t_start) / max(done_here, 1)
     # per optimizer step over the whole training, earlier calls included: a call that resumes a finished run (or
     # one killed after its last step) does no step, and its own mean would be the ~0 s of loading the checkpoint
-    sec = sec_here if seconds_before is None or step == 0 else \
-        (seconds_before + time.perf_counter() - t_start) / step
+    total = seconds_so_far()
+    sec = sec_here if total is None or step == 0 else total / step
     acc.wait_for_everyone()
     if step >= tr["max_steps"] and main:
         save_model(out_dir / final_name, model.weights(acc.unwrap_model(model.transformer)), model.ae, cfg)
