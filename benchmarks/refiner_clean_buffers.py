@@ -1,7 +1,7 @@
 """Refiner vs PBR proxy on the default run's clean_buffers pairs, against training length and CFG.
 
 Needs results/datasets/clean_buffers/pairs.jsonl (``make bench`` runs the pipeline up to it).
-Trains the refiner of config/config.yaml once, resuming at each step count of ``--steps`` (the
+Trains the refiner of ``--config`` (config/config.yaml) once, resuming at each step count of ``--steps`` (the
 checkpoints make 200 + 200 more steps identical to 400 straight), and after each evaluates the
 held-out test pairs at guidance 6 (paper) and 1 (no guidance): PSNR and SSIM on display values
 against the Cycles target, next to the proxy alone; plus, as a diagnostic, the model's one-step
@@ -33,25 +33,25 @@ sys.path.insert(0, str(REPO))
 def main() -> int:
     import numpy as np
     import torch
-    import yaml
 
     from lightcrafter.io import write_json
     from lightcrafter.metrics import video_psnr_db, video_ssim
     from lightcrafter.refiner import PairsDataset, load_model, refine_video, resolve_config, train
     from lightcrafter.report import plot_bench
+    from refiner_small_scale import _cfg_from_yaml
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--pairs", default="results/datasets/clean_buffers/pairs.jsonl",
                     help="pairs manifest; its relative paths resolve against the working directory")
     ap.add_argument("--steps", type=int, nargs="+", default=[200, 400, 800, 1600])
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--config", default=str(REPO / "config/config.yaml"),
+                    help="pipeline config file whose refiner: section is trained (its extends chain followed)")
     ap.add_argument("--name", default="refiner_clean_buffers",
                     help="benchmark name; writes results/bench/NAME.json (e.g. for a larger data set)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
-    user = yaml.safe_load((REPO / "config/config.yaml").read_text())["refiner"]
-    base = {k: v for k, v in user.items() if k != "resources"}
-    cfg = resolve_config(base)
+    cfg = _cfg_from_yaml(Path(a.config), {})
     train_ds = PairsDataset(a.pairs, "train", cfg["data"]["exposure_ev"], cache=True)
     test_ds = PairsDataset(a.pairs, "test", cfg["data"]["exposure_ev"], cache=True)
     from lightcrafter.refiner.data import to_display_frames as disp
@@ -62,7 +62,7 @@ def main() -> int:
     points, train_seconds = [], 0.0
     with tempfile.TemporaryDirectory() as work:
         for steps in sorted(a.steps):
-            c = resolve_config({**base, "train": {**base.get("train", {}), "max_steps": steps}})
+            c = resolve_config({**cfg, "train": {**cfg["train"], "max_steps": steps}})
             t0 = time.perf_counter()
             train(c, train_ds, work, progress=False)
             train_seconds += time.perf_counter() - t0

@@ -683,3 +683,18 @@ def test_selection_chooses_the_correction_blur_and_inference_applies_it(tmp_path
     res = fitmod.fit_refiner(cfg, pairs, tmp_path / "m2", progress=False)["selection"]
     assert sorted((r["residual_scale"], r["correction_blur_px"], r["correction_blur_frames"]) for r in res["table"]) \
         == [(0.0, 0.0, 0.0), (1.0, 3.0, 1.0)]
+
+
+def test_jump_ratio_is_the_clips_4_frame_jump_over_its_targets():
+    """A clip that steps at the 4-frame boundaries scores well above a steadily drifting target; a target whose
+    jump was computed and has no answer (None) counts as 1 without being read again."""
+    from lightcrafter.refiner.fit import jump_ratio
+
+    gen = torch.Generator().manual_seed(0)
+    base = torch.nn.functional.avg_pool2d(torch.rand(3, 1, 64, 96, generator=gen), 7, 1, 3) * 0.8 - 0.4
+    steps = torch.tensor([0.0, 3, 4, 5, 6, 9, 10, 11, 12]) * 0.02
+    drift = base + steps[None, :, None, None]                  # jumps at transitions 0 and 4
+    steady = base + torch.arange(9.0)[None, :, None, None] * 0.02
+    assert jump_ratio(drift, steady) > 2.0
+    assert jump_ratio(steady, steady) == pytest.approx(1.0)
+    assert jump_ratio(drift, None, target_jump=None) == 1.0    # None: the target has no answer, not "compute it"

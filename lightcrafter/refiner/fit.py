@@ -156,14 +156,17 @@ def _block_jump_value(video) -> float | None:
     return block_jump(to_display_frames(video)).value
 
 
-def jump_ratio(video, target, target_jump: float | None = None) -> float:
+_NOT_GIVEN = object()
+
+
+def jump_ratio(video, target, target_jump=_NOT_GIVEN) -> float:
     """Temporal steps of a refined clip at the autoencoder's 4-frame blocks relative to its target's: the
     :func:`lightcrafter.evaluation.block_jump` of ``video`` over that of ``target`` (1 = the target's; the
     refiner's goal is within 10 %). A clip without an answer (too short, no change between boundaries) counts
     as 1. Both (3, N, H, W) in [-1, 1]. ``target_jump``: the target's own jump when already computed (one per
-    clip for every output scored against it)."""
+    clip for every output scored against it; None when it has no answer)."""
     ra = _block_jump_value(video)
-    rb = _block_jump_value(target) if target_jump is None else target_jump
+    rb = _block_jump_value(target) if target_jump is _NOT_GIVEN else target_jump
     return float(ra / rb) if ra is not None and rb else 1.0
 
 
