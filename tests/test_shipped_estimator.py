@@ -166,3 +166,33 @@ def test_estimator_validation_holds_out_a_trajectory_under_all_its_lights():
     assert {c.split("/")[1] for c, _ in val} == {"s0007"} and len(val) == 3 and len(train) == 21
     one = pairs(1, (0, 1))[:2]
     assert mod.validation_split(one) == (one, one)
+
+
+def test_estimator_ensemble_script_writes_the_named_members_and_nothing_for_a_bad_name(tmp_path, monkeypatch):
+    """scripts/estimator_ensemble.py: shipped:N picks the shipped file's member N, a network file adds itself, an
+    ensemble file adds each of its members, in the order named; a shipped index out of range or not a number and a
+    missing file are one line each, and no file is written."""
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(REPO / "scripts"))
+    spec = importlib.util.spec_from_file_location("estimator_ensemble", REPO / "scripts" / "estimator_ensemble.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    a, b = _member_file(tmp_path / "a.pt", 0), _member_file(tmp_path / "b.pt", 1)
+    est.save_ensemble([b, a], tmp_path / "ba.pt")
+    shipped = torch.load(SHIPPED_WEIGHTS, map_location="cpu", weights_only=False)["members"]
+    out = tmp_path / "mine.pt"
+    assert script.main(["--out", str(out), "shipped:2", str(tmp_path / "a.pt"), str(tmp_path / "ba.pt")]) == 0
+    members = torch.load(out, map_location="cpu", weights_only=False)["members"]
+    assert [len(m["state"]) for m in members] == [len(shipped[2]["state"])] + [len(a["state"])] * 3
+    for got, want in zip(members, [shipped[2], a, b, a]):
+        assert all(torch.equal(got["state"][k], want["state"][k]) for k in want["state"])
+    assert len(est.load(out).members) == 4
+    assert script.main(["--out", str(tmp_path / "all.pt"), "shipped"]) == 0
+    assert len(est.load(tmp_path / "all.pt").members) == len(shipped)
+    for bad, says in ((f"shipped:{len(shipped)}", f"has {len(shipped)} member(s)"), ("shipped:x", "shipped:N"),
+                      (str(tmp_path / "none.pt"), "not found")):
+        with pytest.raises(io.DataError) as exc:
+            script.main(["--out", str(tmp_path / "bad.pt"), "shipped:0", bad])
+        assert says in str(exc.value) and "\n" not in str(exc.value)
+        assert not (tmp_path / "bad.pt").exists()
