@@ -410,10 +410,53 @@ def test_a_camera_far_off_the_path_counts_as_unregistered():
     assert (drop_far_cameras(far, unreg) == (unreg & kept)).all()
 
 
+def _orbit_c2w(n: int, step_deg: float = 4.0) -> np.ndarray:
+    """(n, 4, 4) camera-to-world poses (OpenCV axes) of an orbit at constant speed around +Z, 3 m out and 1 m up,
+    looking at the origin."""
+    out = np.repeat(np.eye(4)[None], n, 0)
+    for k in range(n):
+        th = np.radians(step_deg * k)
+        c = np.array([3 * np.cos(th), 3 * np.sin(th), 1.0])
+        f = -c / np.linalg.norm(c)
+        r = np.cross(f, [0.0, 0.0, 1.0])
+        r /= np.linalg.norm(r)
+        out[k, :3, :3] = np.stack([r, np.cross(r, f) * -1, f], 1)
+        out[k, :3, 3] = c
+    return out
+
+
+def test_unregistered_frames_continue_the_cameras_motion():
+    """recon.sfm.fill_unregistered: ``motion`` poses the frames SfM left out of an orbit at constant speed exactly,
+    in a gap and past both ends of the clip (``nearest`` is 4 degrees per missing frame off); registered frames
+    keep their poses; a half turn between registered frames (no real logarithm) falls back to the nearest pose;
+    the mode is checked."""
+    from lightcrafter.config.models import SfM
+    from lightcrafter.recon.cameras import fill_unregistered_poses
+    from lightcrafter.recon.evaluate import rotation_angle_deg
+
+    gt = _orbit_c2w(13)
+    reg = np.ones(13, bool)
+    reg[[0, 1, 2, 3, 7, 8, 12]] = False
+    seen = np.where(reg[:, None, None], gt, np.nan)
+    near = fill_unregistered_poses(seen, reg, "nearest")
+    moved = fill_unregistered_poses(seen, reg, SfM(fill_unregistered="motion").fill_unregistered)
+    assert np.allclose(moved[reg], gt[reg]) and np.allclose(near[reg], gt[reg])
+    assert np.allclose(moved, gt, atol=1e-8)
+    near_err = [rotation_angle_deg(near[i, :3, :3], gt[i, :3, :3]) for i in range(13)]
+    assert max(near_err) == pytest.approx(16.0, abs=1e-6)  # frame 0 takes frame 4's pose
+    half = np.repeat(np.eye(4)[None], 3, 0)
+    half[2, :3, :3] = np.diag([-1.0, -1.0, 1.0])  # a half turn about z between frames 0 and 2
+    got = fill_unregistered_poses(half, np.array([True, False, True]), "motion")
+    assert np.all(np.isfinite(got)) and (np.allclose(got[1], half[0]) or np.allclose(got[1], half[2]))
+    with pytest.raises(ValueError, match="fill_unregistered='spline'"):
+        fill_unregistered_poses(gt, reg, "spline")
+
+
 def test_a_frame_posed_against_a_wrong_part_of_the_model_counts_as_unregistered():
     """A frame whose depth scale (its SfM points' depths over the estimator's) is more than
     recon.sfm.max_depth_scale_ratio off the clip's median frame was posed against a wrong part of the model: it
-    counts as unregistered and takes a neighbour's pose; a consistent clip, and frames with too few points to
+    counts as unregistered and is posed on the path between its neighbours (or takes a neighbour's pose with
+    fill_unregistered: nearest); a consistent clip, and frames with too few points to
     measure, keep theirs; too few frames left is the usual one-line error; the manifest counts the outliers and
     the spread."""
     from lightcrafter.config.models import SfM
@@ -450,7 +493,9 @@ def test_a_frame_posed_against_a_wrong_part_of_the_model_counts_as_unregistered(
 
     got = cameras.accept_model(K, c2w, np.ones(n, bool), pts, obs, SfM(), "c", depth=bad)  # what _colmap returns
     assert not got.registered[6] and got.registered.sum() == n - 1 and len(got.observations[6][1]) == 0
-    assert np.allclose(got.c2w[6], c2w[5]) or np.allclose(got.c2w[6], c2w[7])  # a neighbour's pose
+    assert np.allclose(got.c2w[6], c2w[6])  # posed on the path between its neighbours (fill_unregistered: motion)
+    near = cameras.accept_model(K, c2w, np.ones(n, bool), pts, obs, SfM(fill_unregistered="nearest"), "c", depth=bad)
+    assert np.allclose(near.c2w[6], c2w[5]) or np.allclose(near.c2w[6], c2w[7])  # a neighbour's pose
     assert got.info["depth_scale_outliers"] == 1 and got.info["depth_scale_spread"] > 100
     kept = cameras.accept_model(K, c2w, np.ones(n, bool), pts, obs, SfM(max_depth_scale_ratio=None), "c", depth=bad)
     assert kept.registered.all() and "depth_scale_outliers" not in kept.info  # null: off

@@ -17,7 +17,8 @@ Conventions
 Far cameras: structure from motion sometimes registers a frame with its centre far off the clip's path (in a
 study run, 3.6e3 and 1.9e8 times the median camera's distance from the path's median centre, where every other
 moving clip of the run stayed under 10x); such a frame is counted as unregistered
-(:func:`drop_far_cameras`, ``FAR_CAMERA_FACTOR``) and takes its nearest registered neighbour's pose. So does a
+(:func:`drop_far_cameras`, ``FAR_CAMERA_FACTOR``) and is posed like a frame SfM did not register
+(:func:`fill_unregistered_poses`, ``recon.sfm.fill_unregistered``). So is a
 frame whose depth scale (its SfM points' depths over the G-buffer estimator's, when Phi gives them) is more than
 ``recon.sfm.max_depth_scale_ratio`` times off the clip's median frame (:func:`depth_scale_outliers`), a check of the
 model against a cue SfM does not use. Of the study config's 42 moving clips one sets it off (``s0023_t1``: one frame
@@ -186,8 +187,8 @@ def estimate_cameras(frames: np.ndarray, fov_x_rad: float, settings: SfMSettings
     Raises :class:`ReconstructionError` (one line naming ``name``) when SfM registers fewer than
     ``min_registered_fraction`` of the frames with the settings and with each of their ``retry`` overrides
     (tried in order; ``info["sfm_attempt"]`` is the one that succeeded, 0 = ``settings`` themselves).
-    Unregistered frames of an accepted model get the pose of their nearest registered neighbour (flagged in
-    ``registered``).
+    Unregistered frames of an accepted model (flagged in ``registered``) are posed by
+    :func:`fill_unregistered_poses` (``settings.fill_unregistered``).
     """
     frames = np.asarray(frames)
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
@@ -311,6 +312,55 @@ def _colmap(frames: np.ndarray, K: np.ndarray, s: SfMSettings, name: str, tmp: P
                          else f"sequential({s.sequential_overlap})"})
 
 
+#: registered frames a clip end's motion is measured over (the nearest and up to this many frames beyond it)
+MOTION_BASELINE_FRAMES = 3
+
+
+def _se3_power(delta: np.ndarray, t: float) -> np.ndarray | None:
+    """``delta`` (4, 4) rigid motion raised to the real power ``t`` (the geodesic exp(t log delta)); None when it
+    has no real logarithm (a half turn) or the result is not finite."""
+    from scipy.linalg import expm, logm
+
+    log = logm(delta)
+    if np.iscomplexobj(log):
+        if np.abs(log.imag).max() > 1e-8:
+            return None
+        log = log.real
+    out = expm(t * log)
+    return out if np.all(np.isfinite(out)) else None
+
+
+def fill_unregistered_poses(c2w: np.ndarray, registered: np.ndarray, mode: str = "nearest") -> np.ndarray:
+    """Poses for the unregistered frames of a track: c2w (N, 4, 4), any axes, registered (N,) bool; returns a
+    copy with every unregistered frame posed. ``nearest``: its nearest registered neighbour's pose. ``motion``: the
+    camera's motion continued: within a gap, the geodesic in SE(3) between the registered frames around it
+    (T_i = (T_b T_a^-1)^((i-a)/(b-a)) T_a, exact for an orbit or a dolly at constant speed); before the first or
+    after the last registered frame, the mean motion per frame over the nearest registered frames
+    (:data:`MOTION_BASELINE_FRAMES`) carried on. A motion without a real logarithm falls back to ``nearest``."""
+    if mode not in ("nearest", "motion"):
+        raise ValueError(f"recon.sfm.fill_unregistered={mode!r}: use 'nearest' or 'motion'")
+    out = np.array(c2w, np.float64)
+    registered = np.asarray(registered, bool)
+    reg = np.flatnonzero(registered)
+    if len(reg) == 0:
+        raise ValueError("fill_unregistered_poses: no registered frame")
+    for i in np.flatnonzero(~registered):
+        near = reg[np.argmin(np.abs(reg - i))]
+        pose = None
+        if mode == "motion" and len(reg) >= 2:
+            before, after = reg[reg < i], reg[reg > i]
+            if len(before) and len(after):
+                a, b = before[-1], after[0]
+            elif len(after):     # before the first registered frame
+                a, b = after[0], after[min(MOTION_BASELINE_FRAMES, len(after) - 1)]
+            else:                # after the last
+                a, b = before[-1 - min(MOTION_BASELINE_FRAMES, len(before) - 1)], before[-1]
+            step = _se3_power(out[b] @ np.linalg.inv(out[a]), (i - a) / (b - a))
+            pose = None if step is None else step @ out[a]
+        out[i] = out[near] if pose is None else pose
+    return out
+
+
 def accept_model(K: np.ndarray, c2w: np.ndarray, registered: np.ndarray, points: np.ndarray,
                  observations: list[tuple[np.ndarray, np.ndarray]], s: SfMSettings, name: str,
                  depth: np.ndarray | None = None, info: dict | None = None) -> CameraTrack:
@@ -318,8 +368,8 @@ def accept_model(K: np.ndarray, c2w: np.ndarray, registered: np.ndarray, points:
     per-frame observations): frames far off the path (:func:`drop_far_cameras`) and, with ``depth`` and
     ``s.max_depth_scale_ratio``, frames at another depth scale (:func:`depth_scale_outliers`) count as
     unregistered (their observations dropped); fewer than ``s.min_registered_fraction`` registered frames is a
-    :class:`ReconstructionError` naming ``name``; an unregistered frame takes its nearest registered neighbour's
-    pose. ``info`` is added to the track's."""
+    :class:`ReconstructionError` naming ``name``; an unregistered frame is posed by :func:`fill_unregistered_poses`
+    (``s.fill_unregistered``). ``info`` is added to the track's."""
     n = len(c2w)
     c2w, observations = np.array(c2w, np.float64), list(observations)
     registered = np.asarray(registered, bool)
@@ -346,9 +396,7 @@ def accept_model(K: np.ndarray, c2w: np.ndarray, registered: np.ndarray, points:
             if scale_info.get("depth_scale_outliers") else ""
         raise ReconstructionError(f"{name}: structure from motion registered {n_reg}/{n} frames (needs "
                                   f"{s.min_registered_fraction:.0%}{dropped}); too little texture or parallax")
-    reg = np.flatnonzero(registered)
-    for i in np.flatnonzero(~registered):  # nearest registered neighbour's pose
-        c2w[i] = c2w[reg[np.argmin(np.abs(reg - i))]]
+    c2w = fill_unregistered_poses(c2w, registered, s.fill_unregistered)
     return CameraTrack(K=Ks, c2w=c2w, registered=registered, points=points, observations=observations,
                        static=False, info={"method": "colmap", "registered": n_reg, "frames": n,
                                            "points": int(len(points)), "far_cameras_dropped": far, **scale_info,
