@@ -336,7 +336,8 @@ def fill_unregistered_poses(c2w: np.ndarray, registered: np.ndarray, mode: str =
     camera's motion continued: within a gap, the geodesic in SE(3) between the registered frames around it
     (T_i = (T_b T_a^-1)^((i-a)/(b-a)) T_a, exact for an orbit or a dolly at constant speed); before the first or
     after the last registered frame, the mean motion per frame over the nearest registered frames
-    (:data:`MOTION_BASELINE_FRAMES`) carried on. A motion without a real logarithm falls back to ``nearest``."""
+    (:data:`MOTION_BASELINE_FRAMES`) carried on, however far (a camera that stopped there is overshot; the
+    ``min_registered_fraction`` floor bounds the gap). A motion without a real logarithm falls back to ``nearest``."""
     if mode not in ("nearest", "motion"):
         raise ValueError(f"recon.sfm.fill_unregistered={mode!r}: use 'nearest' or 'motion'")
     out = np.array(c2w, np.float64)
