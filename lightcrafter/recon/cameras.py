@@ -330,11 +330,11 @@ def _se3_power(delta: np.ndarray, t: float) -> np.ndarray | None:
     return out if np.all(np.isfinite(out)) else None
 
 
-def fill_unregistered_poses(c2w: np.ndarray, registered: np.ndarray, mode: str = "nearest") -> np.ndarray:
+def fill_unregistered_poses(c2w: np.ndarray, registered: np.ndarray, mode: str) -> np.ndarray:
     """Poses for the unregistered frames of a track: c2w (N, 4, 4), any axes, registered (N,) bool; returns a
-    copy with every unregistered frame posed. ``nearest``: its nearest registered neighbour's pose. ``motion``: the
-    camera's motion continued: within a gap, the geodesic in SE(3) between the registered frames around it
-    (T_i = (T_b T_a^-1)^((i-a)/(b-a)) T_a, exact for an orbit or a dolly at constant speed); before the first or
+    copy with every unregistered frame posed by ``mode`` (recon.sfm.fill_unregistered). ``nearest``: its nearest
+    registered neighbour's pose. ``motion``: the camera's motion continued: within a gap, the geodesic in SE(3)
+    between the registered frames around it (T_i = (T_b T_a^-1)^((i-a)/(b-a)) T_a, exact for an orbit or a dolly at constant speed); before the first or
     after the last registered frame, the mean motion per frame over the nearest registered frames
     (:data:`MOTION_BASELINE_FRAMES`) carried on, however far (a camera that stopped there is overshot; the
     ``min_registered_fraction`` floor bounds the gap). A motion without a real logarithm falls back to ``nearest``."""
