@@ -334,10 +334,11 @@ def fill_unregistered_poses(c2w: np.ndarray, registered: np.ndarray, mode: str) 
     """Poses for the unregistered frames of a track: c2w (N, 4, 4), any axes, registered (N,) bool; returns a
     copy with every unregistered frame posed by ``mode`` (recon.sfm.fill_unregistered). ``nearest``: its nearest
     registered neighbour's pose. ``motion``: the camera's motion continued: within a gap, the geodesic in SE(3)
-    between the registered frames around it (T_i = (T_b T_a^-1)^((i-a)/(b-a)) T_a, exact for an orbit or a dolly at constant speed); before the first or
-    after the last registered frame, the mean motion per frame over the nearest registered frames
-    (:data:`MOTION_BASELINE_FRAMES`) carried on, however far (a camera that stopped there is overshot; the
-    ``min_registered_fraction`` floor bounds the gap). A motion without a real logarithm falls back to ``nearest``."""
+    between the registered frames around it (T_i = (T_b T_a^-1)^((i-a)/(b-a)) T_a, exact for an orbit or a dolly
+    at constant speed); before the first or after the last registered frame, the mean motion per frame over the
+    nearest registered frames (:data:`MOTION_BASELINE_FRAMES`) carried on, however far (a camera that stopped
+    there is overshot; the ``min_registered_fraction`` floor bounds the gap). A motion without a real logarithm
+    falls back to ``nearest``."""
     if mode not in ("nearest", "motion"):
         raise ValueError(f"recon.sfm.fill_unregistered={mode!r}: use 'nearest' or 'motion'")
     out = np.array(c2w, np.float64)
