@@ -8,7 +8,7 @@ the order of ``members`` in lightcrafter/recon/weights/gbuffer_estimator.json) o
 ``train_gbuffer_estimator`` rule wrote, or an ensemble file: each of its members). The output is what
 :func:`lightcrafter.recon.estimator.save_ensemble` writes; point ``recon.estimator.weights`` at it, e.g. in a
 config for ``benchmarks/phi_budget.py --config`` or as ``benchmarks/estimator_weights.py --weights mine=PATH``
-(README, "A fourth and a fifth member"). The shipped weights are not touched: ``scripts/ship_estimator.py
+(docs/phi.md, "A fourth and a fifth member"). The shipped weights are not touched: ``scripts/ship_estimator.py
 --add-member`` ships a member with its provenance.
 """
 

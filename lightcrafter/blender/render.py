@@ -205,7 +205,7 @@ def denoise_quality_of(spec: dict, traj: dict, light_id: str) -> str:
     """OIDN's network for the video of ``traj`` under ``light_id``: ``render.target_denoise_quality`` for a
     video that is only ever a target (a target light other than the source, outside the recon split), else
     ``render.denoise_quality``. A video Φ reconstructs or the estimator trains on keeps the latter: structure
-    from motion on frames of the balanced network lost more clips than on the high one (README)."""
+    from motion on frames of the balanced network lost more clips than on the high one (docs/held_out.md)."""
     quality, target_quality = denoise_networks(spec.get("render", {}))
     target_only = (spec.get("split") != "recon" and light_id in traj.get("target_lights", [])
                    and light_id != traj.get("source_light"))

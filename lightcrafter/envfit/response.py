@@ -14,7 +14,7 @@ fit did not use are not looked at. gamma is bounded to [GAMMA_MIN, GAMMA_MAX]. T
 with no curve, takes part of a camera's curve (tests: a video through gamma 1.8 gives 1.17), so gamma is
 what the map could not explain, not the camera's own curve; it also takes any global contrast error of
 Phi's buffers (on the default's 9 train Cycles clips, which have no camera curve, 0.98-1.44, median
-1.13: benchmarks/envfit_response.py, README).
+1.13: benchmarks/envfit_response.py, docs/phi.md).
 """
 
 from __future__ import annotations

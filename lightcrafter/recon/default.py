@@ -441,7 +441,7 @@ def snap_to_ground_plane(depth: np.ndarray, n_world: np.ndarray, surface: np.nda
     (P, 3) in the given world, per-frame observations); a points' plane beyond ``max_tilt_deg`` of +Z is not
     ground and is ignored, info ``sfm_plane_tilt_deg``). On the 6 moving-camera train clips of the 6-scene
     default the ground's tilt against the truth was 5.2 deg (mean) from the depth, 7.3 from the SfM points' least
-    squares and 2.7 from their mean; on those of the 8-scene default (README) 5.1 deg from that mean and 3.3 from
+    squares and 2.7 from their mean; on those of the 8-scene default (docs/phi.md) 5.1 deg from that mean and 3.3 from
     the SfM points' RANSAC plane alone. Without ``sfm`` or enough points it is ``depth``.
     Returns (depth, n_world, plane (n, o) or None, info) with the plane n . x = o in the given world."""
     from lightcrafter.proxy.geometry import unproject
