@@ -25,16 +25,12 @@ from lightcrafter.io import DataError
 def member_states(spec: str) -> list[dict]:
     """The saved networks (dicts with ``state`` and ``config``) one member spec names; a bad spec, a missing or
     unreadable file, or a shipped index out of range is a DataError of one line."""
-    import torch
-
     from lightcrafter.recon import estimator as est
     from lightcrafter.recon.weights import SHIPPED_WEIGHTS
 
     name, sep, index = spec.partition(":")
     path = SHIPPED_WEIGHTS if name == "shipped" else Path(spec)
-    est.load(path)  # one line for a missing, corrupt or mismatched file
-    st = torch.load(path, map_location="cpu", weights_only=False)
-    states = list(st["members"]) if "members" in st else [st]
+    states = est.saved_members(path)  # one line for a missing, corrupt or mismatched file
     if name != "shipped" or not sep:
         return states
     if not index.isdigit() or int(index) >= len(states):

@@ -127,8 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         if not (SHIPPED_WEIGHTS.is_file() and SHIPPED_PROVENANCE.is_file() and check_set_path().is_file()):
             raise DataError(f"{SHIPPED_WEIGHTS}: no shipped weights to add a member to; ship one first (without "
                             "--add-member)")
-        old = torch.load(SHIPPED_WEIGHTS, map_location="cpu", weights_only=False)
-        members = list(old["members"]) if "members" in old else [old]
+        members = est.saved_members(SHIPPED_WEIGHTS)
         records = [{k: v for k, v in r.items() if k not in HEAD_KEYS}
                    for r in member_records(io.read_json(SHIPPED_PROVENANCE))]
     else:

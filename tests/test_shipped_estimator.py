@@ -170,8 +170,8 @@ def test_estimator_validation_holds_out_a_trajectory_under_all_its_lights():
 
 def test_estimator_ensemble_script_writes_the_named_members_and_nothing_for_a_bad_name(tmp_path, monkeypatch):
     """scripts/estimator_ensemble.py: shipped:N picks the shipped file's member N, a network file adds itself, an
-    ensemble file adds each of its members, in the order named; a shipped index out of range or not a number and a
-    missing file are one line each, and no file is written."""
+    ensemble file adds each of its members, in the order named; a shipped index out of range or not a number, a
+    missing file and a file with a member that does not fit its network are one line each, and no file is written."""
     import importlib.util
 
     monkeypatch.syspath_prepend(str(REPO / "scripts"))
@@ -190,8 +190,10 @@ def test_estimator_ensemble_script_writes_the_named_members_and_nothing_for_a_ba
     assert len(est.load(out).members) == 4
     assert script.main(["--out", str(tmp_path / "all.pt"), "shipped"]) == 0
     assert len(est.load(tmp_path / "all.pt").members) == len(shipped)
+    broken = {**a, "state": dict(list(a["state"].items())[1:])}  # a member whose weights miss a tensor
+    est.save_ensemble([a, broken], tmp_path / "broken.pt")
     for bad, says in ((f"shipped:{len(shipped)}", f"has {len(shipped)} member(s)"), ("shipped:x", "shipped:N"),
-                      (str(tmp_path / "none.pt"), "not found")):
+                      (str(tmp_path / "none.pt"), "not found"), (str(tmp_path / "broken.pt"), "(member 1) do not fit")):
         with pytest.raises(io.DataError) as exc:
             script.main(["--out", str(tmp_path / "bad.pt"), "shipped:0", bad])
         assert says in str(exc.value) and "\n" not in str(exc.value)

@@ -436,10 +436,9 @@ def _member(st, path: Path, fix: str, where: str = "") -> GBufferNet:
     return model
 
 
-def load(path: str | Path) -> GBufferNet | EstimatorEnsemble:
-    """The estimator saved at ``path`` (:func:`save`, or an :class:`EstimatorEnsemble` saved by
-    :func:`save_ensemble`); a missing, corrupt or mismatched file is a DataError of one line naming the file and
-    the fix."""
+def _read(path: str | Path) -> tuple[Path, object, str]:
+    """(path, what torch.load returned, the fix a one-line error names) for a weights file; a missing or unreadable
+    file is a DataError of one line naming the file and the fix."""
     import pickle
     import zipfile
 
@@ -459,13 +458,36 @@ def load(path: str | Path) -> GBufferNet | EstimatorEnsemble:
             TypeError, ModuleNotFoundError) as exc:
         why = str(exc).strip().splitlines()[0] if str(exc).strip() else "truncated or corrupt"
         raise io.DataError(f"{path}: unreadable estimator weights ({type(exc).__name__}: {why[:120]}); {fix}") from None
+    if isinstance(st, dict) and "members" in st and (not isinstance(st["members"], list) or not st["members"]):
+        raise io.DataError(f"{path}: an estimator ensemble file with no members; {fix}")
+    return path, st, fix
+
+
+def _networks(path: Path, st, fix: str) -> list[GBufferNet]:
     if isinstance(st, dict) and "members" in st:
-        if not isinstance(st["members"], list) or not st["members"]:
-            raise io.DataError(f"{path}: an estimator ensemble file with no members; {fix}")
-        members = [_member(m, path, fix, f" (member {i})") for i, m in enumerate(st["members"])]
-        model, device = EstimatorEnsemble(members), st["members"][0]["config"].get("device", "cpu")
+        return [_member(m, path, fix, f" (member {i})") for i, m in enumerate(st["members"])]
+    return [_member(st, path, fix)]
+
+
+def saved_members(path: str | Path) -> list[dict]:
+    """The networks a weights file holds, as :func:`save` wrote each (dicts with ``state`` and ``config``): one for
+    a network's file, each member in order for an ensemble's. Checked as :func:`load` checks them (one line naming
+    the file and the fix); for building another ensemble with :func:`save_ensemble`."""
+    path, st, fix = _read(path)
+    _networks(path, st, fix)
+    return list(st["members"]) if "members" in st else [st]
+
+
+def load(path: str | Path) -> GBufferNet | EstimatorEnsemble:
+    """The estimator saved at ``path`` (:func:`save`, or an :class:`EstimatorEnsemble` saved by
+    :func:`save_ensemble`); a missing, corrupt or mismatched file is a DataError of one line naming the file and
+    the fix."""
+    path, st, fix = _read(path)
+    nets = _networks(path, st, fix)
+    if "members" in st:
+        model, device = EstimatorEnsemble(nets), st["members"][0]["config"].get("device", "cpu")
     else:
-        model, device = _member(st, path, fix), (st.get("config") or {}).get("device", "cpu")
+        model, device = nets[0], (st.get("config") or {}).get("device", "cpu")
     from lightcrafter.devices import resolve_device
 
     return model.to(resolve_device(device, "recon.estimator.device")).eval()
