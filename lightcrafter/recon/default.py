@@ -68,8 +68,10 @@ class DefaultSettings:
     sky_beyond_ground: with the plane, surface pixels off it farther than this multiple of the frame's
     farthest ground pixel become background
     (:func:`cut_sky_beyond_ground`; 0 = off); albedo_detail_px: the input's own texture on the estimator's
-    albedo, through a Gaussian of this many pixels (:func:`albedo_detail`; 0 = off); sfm: SfMSettings fields;
-    exposure_ev: display exposure applied before estimation."""
+    albedo, through a Gaussian of this many pixels (:func:`albedo_detail`; 0 = off); depth_multiview: a moving
+    camera's depth in a static scene refined by a plane sweep against its registered neighbours
+    (:func:`lightcrafter.recon.multiview.refine_depth`); sfm: SfMSettings fields; exposure_ev: display exposure
+    applied before estimation."""
 
     fov_x_deg: float = 50.0
     camera: str = "auto"
@@ -87,6 +89,7 @@ class DefaultSettings:
     ground_plane_sfm_weight: float = 0.5
     sky_beyond_ground: float = 0.0
     albedo_detail_px: float = 0.0
+    depth_multiview: bool = False
     exposure_ev: float = 0.0
     sfm: dict = field(default_factory=dict)
 
@@ -556,6 +559,7 @@ def config_settings(cfg: dict) -> dict:
         "ground_plane_sfm_weight": r["ground_plane_sfm_weight"],
         "sky_beyond_ground": r["sky_beyond_ground"],
         "albedo_detail_px": r["albedo_detail_px"],
+        "depth_multiview": r["depth_multiview"],
         "sfm": r["sfm"],
     }
 
@@ -607,6 +611,11 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
         mask_info = {"mask_pixels_removed": int((mask & ~refined).sum())}
         mask = refined
     depth = np.stack([apply_depth_fit(pred["depth"][i], fits[i], track.K[i]) for i in range(n)])
+    multiview_info = {}
+    if settings.depth_multiview and not track.static and scene_static:
+        from lightcrafter.recon.multiview import refine_depth
+
+        depth, multiview_info = refine_depth(disp, depth, track.K, track.c2w, track.registered)
     if settings.normals == "depth":
         n_cam = np.stack([normals_from_depth(depth[i], track.K[i]) for i in range(n)])
     else:
@@ -680,7 +689,8 @@ def reconstruct_default(frames_dir: str | Path, out_clip: str | Path, *, estimat
         if i in todo:
             frames.stamp()
             io.write_buffers(frames.path(i), b)
-    info = {**track.info, **plane_info, **mask_info, "depth_fit_per_frame": np.round(fits, 6).tolist(),
+    info = {**track.info, **plane_info, **mask_info, **multiview_info,
+            "depth_fit_per_frame": np.round(fits, 6).tolist(),
             "hole_pixels_filled": sum(filled_per_frame), "registered_per_frame": track.registered.tolist()}
     timing = {"cameras_seconds": round(t_cam, 3), "estimator_seconds": round(t_est, 3),
               "seconds": round(time.perf_counter() - t0, 3), "frames": n}
