@@ -46,14 +46,18 @@ def neighbour_frames(registered: np.ndarray, i: int, views: int) -> list[int]:
     return sorted(reg, key=lambda j: (abs(j - i), j))[:views]
 
 
-def _ncc_cost(ref, warped, valid, window_px: int):
-    """1 - NCC per pixel over a window (torch tensors (B, 1, H, W)); NaN where the warp left the frame."""
+def _box(x, window_px: int):
+    """Mean over a square window of ``window_px`` (odd) around each pixel of a torch tensor (B, 1, H, W); at the
+    borders over the part of the window inside the frame."""
     import torch.nn.functional as F
 
-    pad = window_px // 2
+    return F.avg_pool2d(x, window_px, stride=1, padding=window_px // 2, count_include_pad=False)
 
+
+def _ncc_cost(ref, warped, valid, window_px: int):
+    """1 - NCC per pixel over a window (torch tensors (B, 1, H, W)); NaN where the warp left the frame."""
     def box(x):
-        return F.avg_pool2d(x, window_px, stride=1, padding=pad, count_include_pad=False)
+        return _box(x, window_px)
 
     mr, mw = box(ref), box(warped)
     var_r = (box(ref * ref) - mr * mr).clamp_min(0)
@@ -83,7 +87,6 @@ def refine_depth(display_rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, c2w:
     pix = torch.stack([u, v, torch.ones_like(u)], -1)                   # pixel centres at integers
     out = depth.copy()
     changed, moved, valid_total = 0, [], 0
-    pad = s.window_px // 2
     for i in np.flatnonzero(np.asarray(registered, bool)):
         views = neighbour_frames(registered, i, s.views)
         d0 = torch.from_numpy(depth[i])
@@ -125,8 +128,8 @@ def refine_depth(display_rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, c2w:
         off = torch.where(inner & (curv > 1e-9), 0.5 * (lo - hi) / curv.clamp_min(1e-9), torch.zeros_like(c_best))
         step = float(deltas[1] - deltas[0])
         delta = deltas[best].float() + off.clamp(-0.5, 0.5) * step
-        mr = F.avg_pool2d(g[i:i + 1], s.window_px, 1, pad, count_include_pad=False)
-        sd = (F.avg_pool2d(g[i:i + 1] ** 2, s.window_px, 1, pad, count_include_pad=False) - mr ** 2).clamp_min(0).sqrt()
+        mr = _box(g[i:i + 1], s.window_px)
+        sd = (_box(g[i:i + 1] ** 2, s.window_px) - mr ** 2).clamp_min(0).sqrt()
         sure = ok & inner & (k > 0) & (sd[0, 0] >= s.min_texture) & (c.mean(0) - c_best >= s.min_margin)
         out[i] = np.where(sure.numpy(), depth[i] * np.exp(delta.double().numpy()), depth[i])
         changed += int(sure.sum())
